@@ -1,0 +1,1 @@
+"""Rigid-transform helpers and the project's pose conventions."""

@@ -1,0 +1,98 @@
+"""Pose conventions, named once and used everywhere.
+
+All poses are 4x4 homogeneous matrices acting on column vectors, float64, metres.
+
+* ``a_from_b`` maps a point expressed in frame *b* into frame *a*: ``p_a = a_from_b @ p_b``.
+  Composition reads right to left: ``a_from_c = a_from_b @ b_from_c``.
+* ``cam_from_world`` is COLMAP's / OpenCV's world-to-camera pose (the paper's ``[R|t]``):
+  camera axes are +x right, +y down, +z forward (optical axis).
+* ``world_from_cam`` is its inverse; its translation is the camera centre in the world.
+* ``scene_from_object`` / ``world_from_object`` place an object's canonical frame in a scene.
+* ``object_from_cam`` is a camera pose expressed in an object's canonical frame (attacker sequences).
+
+Quaternions are ``[qw, qx, qy, qz]`` (COLMAP order), scipy's Rotation is used underneath.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def make_pose(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """4x4 pose from a 3x3 rotation and a 3-vector translation."""
+    pose = np.eye(4)
+    pose[:3, :3] = np.asarray(rotation, dtype=np.float64)
+    pose[:3, 3] = np.asarray(translation, dtype=np.float64).reshape(3)
+    return pose
+
+
+def invert(pose: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid 4x4 pose (exact transpose formula, not a general inverse)."""
+    rot = pose[:3, :3]
+    return make_pose(rot.T, -rot.T @ pose[:3, 3])
+
+
+def transform_points(a_from_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:
+    """Map (N, 3) points from frame b to frame a."""
+    points_b = np.asarray(points_b, dtype=np.float64)
+    return points_b @ a_from_b[:3, :3].T + a_from_b[:3, 3]
+
+
+def camera_centre(cam_from_world: np.ndarray) -> np.ndarray:
+    """Camera centre in world coordinates, ``-R^T t``."""
+    return -cam_from_world[:3, :3].T @ cam_from_world[:3, 3]
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """``cam_from_world`` of an OpenCV camera at ``eye`` looking at ``target`` with world ``up`` roughly up."""
+    eye = np.asarray(eye, dtype=np.float64)
+    forward = np.asarray(target, dtype=np.float64) - eye
+    forward /= np.linalg.norm(forward)
+    up = np.asarray(up, dtype=np.float64)
+    right = np.cross(forward, up)
+    if np.linalg.norm(right) < 1e-9:  # looking straight along up: pick any right vector
+        right = np.cross(forward, [1.0, 0.0, 0.0] if abs(forward[0]) < 0.9 else [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    world_from_cam = make_pose(np.stack([right, down, forward], axis=1), eye)
+    return invert(world_from_cam)
+
+
+def rotation_angle_deg(rotation: np.ndarray) -> float:
+    """Angle of a rotation matrix in degrees (numerically safe arccos of the trace)."""
+    cos = (np.trace(rotation) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def rotation_error_deg(r_a: np.ndarray, r_b: np.ndarray) -> float:
+    """Angle of ``r_a r_b^T`` in degrees."""
+    return rotation_angle_deg(r_a @ r_b.T)
+
+
+def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:
+    """COLMAP-order quaternion ``[qw, qx, qy, qz]`` with qw >= 0."""
+    x, y, z, w = Rotation.from_matrix(rotation).as_quat()
+    q = np.array([w, x, y, z])
+    return q if q[0] >= 0 else -q
+
+
+def matrix_from_quat_wxyz(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix from a COLMAP-order quaternion ``[qw, qx, qy, qz]``."""
+    w, x, y, z = np.asarray(q, dtype=np.float64)
+    return Rotation.from_quat([x, y, z, w]).as_matrix()
+
+
+def check_pose(pose: np.ndarray, name: str = "pose", tol: float = 1e-6) -> np.ndarray:
+    """Validate a rigid 4x4 pose: finite, orthonormal rotation with det +1, last row [0 0 0 1]."""
+    pose = np.asarray(pose, dtype=np.float64)
+    if pose.shape != (4, 4):
+        raise ValueError(f"{name}: expected a 4x4 matrix, got shape {pose.shape}")
+    if not np.all(np.isfinite(pose)):
+        raise ValueError(f"{name}: pose has non-finite entries")
+    rot = pose[:3, :3]
+    if np.abs(rot @ rot.T - np.eye(3)).max() > tol or abs(np.linalg.det(rot) - 1.0) > tol:
+        raise ValueError(f"{name}: rotation block is not a proper rotation")
+    if np.abs(pose[3] - [0, 0, 0, 1]).max() > tol:
+        raise ValueError(f"{name}: last row is not [0, 0, 0, 1]")
+    return pose
