@@ -69,6 +69,8 @@ class InstanceInfo:
     extents: np.ndarray
     variant_params: dict = field(default_factory=dict)
     prim_path: str = ""
+    support: str = "floor"
+    """floor | wall | ceiling | surface | none (as ``PlacedObject.support``); orbits depend on it."""
 
 
 @dataclass

@@ -1,0 +1,76 @@
+"""Library listing for ``synthleak objects [--json]``: plain rows and a rich table."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rich.markup import escape
+from rich.table import Table
+
+from synthleak.assets.library import ObjectModel
+
+
+def objects_rows(library: dict[str, ObjectModel]) -> list[dict[str, Any]]:
+    """One JSON-serialisable row per model, sorted by id."""
+    rows = []
+    for mid in sorted(library):
+        m = library[mid]
+        rows.append(
+            {
+                "id": m.model_id,
+                "category": m.category,
+                "size": [round(s, 4) for s in m.size],
+                "symmetry": m.symmetry,
+                "support": m.support,
+                "builder": m.builder,
+                "params": {
+                    k: {"default": r.default, "min": r.min, "max": r.max, "integer": r.integer}
+                    for k, r in sorted(m.params.items())
+                },
+                "scale_range": list(m.scale_range),
+                "colour_range": list(m.colour_range),
+                "textures": {k: v["kind"] for k, v in sorted(m.textures.items())},
+                "source": m.source,
+            }
+        )
+    return rows
+
+
+def _fmt(v: float, integer: bool) -> str:
+    return str(int(v)) if integer else f"{v:g}"
+
+
+def objects_table(library: dict[str, ObjectModel]) -> Table:
+    """A rich table of the library (id, category, size, symmetry, support, parameter and scale ranges)."""
+    t = Table(
+        title=f"object library ({len(library)} models, "
+        f"{len({m.category for m in library.values()})} categories)"
+    )
+    for col in (
+        "id",
+        "category",
+        "size x,y,z (m)",
+        "sym",
+        "support",
+        "shape params [min..max] (default)",
+        "scale",
+        "textures",
+    ):
+        t.add_column(escape(col), overflow="fold")
+    for row in objects_rows(library):
+        params = "\n".join(
+            f"{k} [{_fmt(p['min'], p['integer'])}..{_fmt(p['max'], p['integer'])}] "
+            f"({_fmt(p['default'], p['integer'])})"
+            for k, p in row["params"].items()
+        )
+        t.add_row(
+            row["id"],
+            row["category"],
+            " x ".join(f"{s:.2f}" for s in row["size"]),
+            row["symmetry"],
+            row["support"],
+            escape(params) or "-",
+            f"{row['scale_range'][0]:g}..{row['scale_range'][1]:g}",
+            ", ".join(sorted(set(row["textures"].values()))),
+        )
+    return t

@@ -1,0 +1,46 @@
+"""Content-addressed stage caching: a stage's output folder holds a ``.done.json`` with the key of its inputs.
+
+A stage is redone when its key changes (a config section or an upstream output changed), when it is
+forced, or when its marker is missing (an interrupted run). Keys are SHA-256 of canonical JSON.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+MARKER = ".done.json"
+
+
+def cache_key(*parts: Any) -> str:
+    """SHA-256 of the canonical JSON of ``parts`` (dicts sorted, floats as repr)."""
+    text = json.dumps(parts, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def is_done(folder: Path, key: str) -> bool:
+    """True if ``folder`` was completed with the same key."""
+    marker = folder / MARKER
+    if not marker.is_file():
+        return False
+    try:
+        return json.loads(marker.read_text()).get("key") == key
+    except (OSError, json.JSONDecodeError):
+        return False
+
+
+def mark_done(folder: Path, key: str, **info: Any) -> None:
+    """Record that ``folder`` holds the complete output for ``key`` (atomic write)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(folder / MARKER, json.dumps({"key": key, **info}, sort_keys=True, indent=1))
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write text to a temporary name beside ``path`` and rename it into place."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)

@@ -1,0 +1,154 @@
+"""Command-line interface: a thin layer over the Python API (every command is one function call)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+
+def _cmd_objects(args: argparse.Namespace) -> None:
+    from rich.console import Console
+
+    from synthleak.assets.catalog import objects_rows, objects_table
+    from synthleak.assets.library import load_library
+
+    library = load_library()
+    if args.json:
+        print(json.dumps(objects_rows(library), indent=2))
+    else:
+        Console().print(objects_table(library))
+
+
+def _cmd_scenes(args: argparse.Namespace) -> None:
+    from synthleak.config import load_config
+    from synthleak.scene.generate import write_study_stages
+
+    out = write_study_stages(load_config(args.config), Path(args.out), progress=not args.quiet)
+    print(f"stages written to {out}")
+
+
+def _cmd_render(args: argparse.Namespace) -> None:
+    from synthleak.config import load_config
+    from synthleak.render.pipeline import render_stages, write_manifest
+
+    config = load_config(args.config)
+    out = render_stages(config, Path(args.stages), Path(args.out), progress=not args.quiet)
+    write_manifest(Path(args.out), config)
+    print(f"dataset written to {out}")
+
+
+def _cmd_generate(args: argparse.Namespace) -> None:
+    from synthleak.config import load_config
+    from synthleak.render.pipeline import generate
+
+    out = generate(load_config(args.config), Path(args.out), progress=not args.quiet)
+    print(f"dataset written to {out}")
+
+
+def _localize_config(config_name: str | None):
+    from synthleak.config import LocalizeConfig, load_config
+
+    return load_config(config_name).localize if config_name else LocalizeConfig()
+
+
+def _cmd_map(args: argparse.Namespace) -> None:
+    from synthleak.localize.mapping import build_map
+
+    out = build_map(Path(args.scene), args.tier, Path(args.out), _localize_config(args.config),
+                    progress=not args.quiet)
+    print(f"map written to {out}")
+
+
+def _cmd_serve(args: argparse.Namespace) -> None:
+    from synthleak.localize.server import serve
+
+    serve(Path(args.map), host=args.host, port=args.port, config=_localize_config(args.config))
+
+
+def _cmd_localize(args: argparse.Namespace) -> None:
+    from synthleak.localize.localizer import Localizer
+    from synthleak.localize.results import result_to_response
+
+    localizer = Localizer.load(Path(args.map), _localize_config(args.config))
+    for image in args.images:
+        response = result_to_response(localizer.localize(Path(image).read_bytes()))
+        print(json.dumps({"image": image, **response}))
+
+
+def _cmd_study(args: argparse.Namespace) -> None:
+    from synthleak.config import load_config
+    from synthleak.study import run_study
+
+    report = run_study(load_config(args.config), Path(args.out), force=args.force or [],
+                       server_url=args.server, progress=not args.quiet, workers=args.workers)
+    print(f"report written to {report}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="synthleak", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def command(name: str, handler: Callable[[argparse.Namespace], None], help_text: str):
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(handler=handler)
+        p.add_argument("--quiet", action="store_true", help="no progress bars")
+        return p
+
+    p = command("objects", _cmd_objects, "list the object library's models")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+
+    p = command("scenes", _cmd_scenes, "write the USD stages of a study (rooms + attacker setups)")
+    p.add_argument("config", help="config path or name in render_configs/ (e.g. ci-tiny)")
+    p.add_argument("--out", required=True, help="stages folder")
+
+    p = command("render", _cmd_render, "render the sequences of already written stages")
+    p.add_argument("config")
+    p.add_argument("--stages", required=True, help="folder written by `synthleak scenes`")
+    p.add_argument("--out", required=True, help="dataset folder")
+
+    p = command("generate", _cmd_generate, "stages + renders in one go (resumable)")
+    p.add_argument("config")
+    p.add_argument("--out", required=True, help="dataset folder")
+
+    p = command("map", _cmd_map, "build a localization map from a rendered scene sequence")
+    p.add_argument("scene", help="a scene sequence folder, e.g. DATASET/scenes/room_000")
+    p.add_argument("--tier", default="sift", help="feature tier: sift, orb, akaze, kornia-sift, disk-lightglue")
+    p.add_argument("--out", required=True, help="map folder")
+    p.add_argument("--config", help="study config whose [localize] section to use")
+
+    p = command("serve", _cmd_serve, "serve a map over HTTP on loopback (POST /localize, GET /health)")
+    p.add_argument("map")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=8000)
+    p.add_argument("--config")
+
+    p = command("localize", _cmd_localize, "localize images against a map (prints one JSON line each)")
+    p.add_argument("map")
+    p.add_argument("images", nargs="+")
+    p.add_argument("--config")
+
+    p = command("study", _cmd_study, "run (or resume) a whole study: stages, renders, maps, attack, report")
+    p.add_argument("config")
+    p.add_argument("--out", required=True)
+    p.add_argument("--force", action="append", metavar="STAGE",
+                   help="redo a stage: stages, render, maps, queries, attack, report (repeatable)")
+    p.add_argument("--server", help="attack a running HTTP server instead of in-process localizers")
+    p.add_argument("--workers", type=int, default=1, help="worker processes for rendering and queries")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        args.handler(args)
+    except (ValueError, FileNotFoundError, KeyError) as exc:  # our errors name the file and the field
+        print(f"synthleak {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

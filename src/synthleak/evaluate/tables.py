@@ -1,0 +1,295 @@
+"""Results rows -> presence precision/recall tables (paper Table 1 and the appendix per-object table),
+placement summaries, and the results files.
+
+A results row is a plain dict, one per (room, attacker object, tier, aligner, thresholds[, variant]):
+see :data:`COLUMNS`. ``decision`` is the leave-one-scene-out presence decision
+(:func:`apply_presence_decisions` fills it). Conventions: precision with no positive decision is 0 (the
+paper's tables print 0 for objects never decided present); recall with no GT-present pair is NaN.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from synthleak.attack.presence import PresenceRecord, leave_one_scene_out
+from synthleak.evaluate.metrics import DEFAULT_THRESHOLDS
+
+COLUMNS: tuple[str, ...] = (
+    "room", "object", "model_id", "category", "tier", "aligner", "delta_r_deg", "delta_t_m", "present_gt",
+    "eps", "decision", "n_queries", "n_localized", "rot_err_deg", "trans_err_m", "iou3d",
+    "scene_from_object_est", "magnitude", "kind",
+)
+"""Stable column order of the results files; extra keys follow, sorted."""
+
+CONFIG_KEYS: tuple[str, ...] = ("tier", "aligner", "delta_r_deg", "delta_t_m", "magnitude", "kind")
+"""Fields that identify one attack configuration (one leave-one-scene-out experiment)."""
+
+FLOAT_COLUMNS = ("delta_r_deg", "delta_t_m", "eps", "rot_err_deg", "trans_err_m", "iou3d", "magnitude")
+
+
+# --------------------------------------------------------------------------------------------- helpers
+
+
+def sort_key(value: Any) -> tuple:
+    """Total order over mixed numbers / strings / None (None last), for deterministic grouping."""
+    if value is None:
+        return (2, "")
+    if isinstance(value, bool | int | float):
+        return (0, float(value), "")
+    return (1, 0.0, str(value))
+
+
+def _group(rows: Iterable[dict], fields: Sequence[str]) -> dict[tuple, list[dict]]:
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    for k, row in enumerate(rows):
+        missing = [f for f in fields if f not in row]
+        if missing:
+            raise ValueError(f"rows[{k}]: missing field(s) {missing}")
+        groups[tuple(row[f] for f in fields)].append(row)
+    return dict(sorted(groups.items(), key=lambda kv: tuple(sort_key(v) for v in kv[0])))
+
+
+def _fmt(value: float, digits: int = 2) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    if isinstance(value, float) and math.isinf(value):
+        return "∞"
+    return f"{value:.{digits}f}"
+
+
+def _thr_label(delta_r: float, delta_t: float) -> str:
+    return f"{delta_r:g}°, {delta_t:g}m"
+
+
+def precision_recall(rows: Sequence[dict]) -> dict[str, float | int]:
+    """Counts and P/R of the ``decision`` against ``present_gt`` over rows."""
+    tp = sum(1 for r in rows if r["decision"] and r["present_gt"])
+    fp = sum(1 for r in rows if r["decision"] and not r["present_gt"])
+    fn = sum(1 for r in rows if not r["decision"] and r["present_gt"])
+    tn = len(rows) - tp - fp - fn
+    precision = tp / (tp + fp) if tp + fp else 0.0
+    recall = tp / (tp + fn) if tp + fn else math.nan
+    return {"tp": tp, "fp": fp, "fn": fn, "tn": tn, "precision": precision, "recall": recall,
+            "n_present": tp + fn, "n_pairs": len(rows)}
+
+
+# --------------------------------------------------------------------------------------------- presence
+
+
+def apply_presence_decisions(rows: Sequence[dict]) -> list[dict]:
+    """Copies of ``rows`` with ``decision`` set by leave-one-scene-out within each attack configuration."""
+    out = [dict(r) for r in rows]
+    for group in _group(out, CONFIG_KEYS).values():
+        records = [
+            PresenceRecord(r["room"], r["object"], float(r["eps"]), bool(r["present_gt"])) for r in group
+        ]
+        for row, dec in zip(group, leave_one_scene_out(records), strict=True):
+            row["decision"] = dec.decision
+            row["eps_plus"] = dec.eps_plus
+            row["eps_minus"] = dec.eps_minus
+    return out
+
+
+def presence_pr_per_room(rows: Sequence[dict]) -> list[dict]:
+    """Precision/recall per (configuration, room), plus a pooled ``room = "all"`` row per configuration."""
+    return _pr_by(rows, "room")
+
+
+def presence_pr_per_object(rows: Sequence[dict]) -> list[dict]:
+    """Precision/recall per (configuration, attacker object) over all rooms, plus pooled ``"all"`` rows."""
+    return _pr_by(rows, "object")
+
+
+def _pr_by(rows: Sequence[dict], field: str) -> list[dict]:
+    out = []
+    for key, group in _group(rows, CONFIG_KEYS).items():
+        base = dict(zip(CONFIG_KEYS, key, strict=True))
+        for (name,), sub in _group(group, [field]).items():
+            out.append({**base, field: name, **precision_recall(sub)})
+        out.append({**base, field: "all", **precision_recall(group)})
+    return out
+
+
+def random_guess_precision(rows: Sequence[dict]) -> float:
+    """Precision of guessing at random: the fraction of distinct (room, object) pairs that are present."""
+    pairs = {(r["room"], r["object"]): bool(r["present_gt"]) for r in rows}
+    return sum(pairs.values()) / len(pairs) if pairs else math.nan
+
+
+def _pr_table(rows: Sequence[dict], field: str, title: str) -> str:
+    """One markdown table per (aligner, magnitude, kind): rows = ``field``, columns = tier x thresholds."""
+    blocks = []
+    for (aligner, magnitude, kind), sec_rows in _group(rows, ["aligner", "magnitude", "kind"]).items():
+        tiers = sorted({r["tier"] for r in sec_rows}, key=sort_key)
+        thresholds = sorted({(r["delta_r_deg"], r["delta_t_m"]) for r in sec_rows})
+        stats = {}
+        for r in _pr_by(sec_rows, field):
+            stats[(r[field], r["tier"], r["delta_r_deg"], r["delta_t_m"])] = r
+        names = sorted({r[field] for r in sec_rows}, key=sort_key) + ["all"]
+        heading = f"**{title}** — aligner `{aligner}`"
+        if magnitude is not None or kind is not None:
+            heading += f", variant magnitude {magnitude}, kind {kind}"
+        cols = [f"{t} {_thr_label(*th)} {pr}" for t in tiers for th in thresholds for pr in ("P", "R")]
+        lines = [heading, "", "| " + " | ".join([field, *cols]) + " |", "|" + "---|" * (len(cols) + 1)]
+        for name in names:
+            cells = []
+            for t in tiers:
+                for th in thresholds:
+                    s = stats.get((name, t, *th))
+                    cells += [_fmt(s["precision"]), _fmt(s["recall"])] if s else ["–", "–"]
+            lines.append("| " + " | ".join([str(name), *cells]) + " |")
+        lines += ["", f"Random-guess precision: {_fmt(random_guess_precision(sec_rows))}"]
+        blocks.append("\n".join(lines))
+    return "\n\n".join(blocks) + "\n"
+
+
+def table1_markdown(rows: Sequence[dict]) -> str:
+    """Paper Table 1: presence precision/recall per room, column groups = tiers x threshold pairs."""
+    return _pr_table(rows, "room", "Presence precision (P) / recall (R) per room")
+
+
+def table2_markdown(rows: Sequence[dict]) -> str:
+    """Appendix per-object table: presence precision/recall per attacker object over all rooms."""
+    return _pr_table(rows, "object", "Presence precision (P) / recall (R) per object")
+
+
+# --------------------------------------------------------------------------------------------- placement
+
+
+def _finite_or(value: Any, default: float) -> float:
+    if value is None:
+        return default
+    value = float(value)
+    return default if math.isnan(value) else value
+
+
+def placement_stats(
+    rows: Sequence[dict],
+    decided_only: bool = False,
+    thresholds: Sequence[tuple[float, float]] = DEFAULT_THRESHOLDS,
+) -> list[dict]:
+    """Placement statistics of GT-present pairs per configuration (``decided_only``: also decided present).
+
+    A pair without an estimate counts with infinite errors (medians) and IoU 0; success rates use the
+    (degrees, metres) ``thresholds``.
+    """
+    out = []
+    chosen = [r for r in rows if r["present_gt"] and (r["decision"] or not decided_only)]
+    for key, group in _group(chosen, CONFIG_KEYS).items():
+        rot = np.array([_finite_or(r.get("rot_err_deg"), math.inf) for r in group])
+        trans = np.array([_finite_or(r.get("trans_err_m"), math.inf) for r in group])
+        iou = np.array([_finite_or(r.get("iou3d"), 0.0) for r in group])
+        stat = dict(zip(CONFIG_KEYS, key, strict=True))
+        stat.update({
+            "n": len(group),
+            "n_placed": int(np.isfinite(rot).sum()),
+            "median_rot_err_deg": float(np.median(rot)),
+            "median_trans_err_m": float(np.median(trans)),
+            "median_iou3d": float(np.median(iou)),
+            "mean_iou3d": float(np.mean(iou)),
+        })
+        for dr, dt in thresholds:
+            stat[f"success_{dr:g}deg_{dt:g}m"] = float(np.mean((rot <= dr) & (trans <= dt)))
+        out.append(stat)
+    return out
+
+
+def placement_summary(
+    rows: Sequence[dict], thresholds: Sequence[tuple[float, float]] = DEFAULT_THRESHOLDS
+) -> str:
+    """Markdown: placement errors, IoU and success rates per tier x aligner x thresholds, for all GT-present
+    pairs and for the GT-present pairs the attack also decided present."""
+    blocks = []
+    for decided, title in ((False, "all GT-present pairs"), (True, "GT-present pairs decided present")):
+        stats = placement_stats(rows, decided_only=decided, thresholds=thresholds)
+        succ = [f"succ {dr:g}°/{dt:g}m" for dr, dt in thresholds]
+        header = ["tier", "aligner", "δr, δt", "magnitude", "kind", "n", "placed", "med rot °", "med trans m",
+                  "med IoU", "mean IoU", *succ]
+        lines = [f"**Placement, {title}**", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        for s in stats:
+            cells = [str(s["tier"]), str(s["aligner"]), _thr_label(s["delta_r_deg"], s["delta_t_m"]),
+                     "–" if s["magnitude"] is None else f"{s['magnitude']:g}", str(s["kind"] or "–"),
+                     str(s["n"]), str(s["n_placed"]), _fmt(s["median_rot_err_deg"], 1),
+                     _fmt(s["median_trans_err_m"], 3), _fmt(s["median_iou3d"]), _fmt(s["mean_iou3d"])]
+            cells += [_fmt(s[f"success_{dr:g}deg_{dt:g}m"]) for dr, dt in thresholds]
+            lines.append("| " + " | ".join(cells) + " |")
+        if not stats:
+            lines.append("| " + " | ".join(["–"] * len(header)) + " |")
+        blocks.append("\n".join(lines))
+    return "\n\n".join(blocks) + "\n"
+
+
+# --------------------------------------------------------------------------------------------- files
+
+
+def _plain(value: Any) -> Any:
+    """JSON-ready value: numpy scalars/arrays to Python, floats to 10 significant digits, NaN/inf to None."""
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, np.bool_ | bool):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        value = float(value)
+        return float(f"{value:.10g}") if math.isfinite(value) else None
+    return value
+
+
+def ordered_columns(rows: Sequence[dict]) -> list[str]:
+    extra = sorted({k for r in rows for k in r} - set(COLUMNS))
+    return [*COLUMNS, *extra]
+
+
+def _csv_cell(value: Any) -> str:
+    value = _plain(value)
+    if value is None:
+        return ""
+    if isinstance(value, list | dict):
+        return json.dumps(value, separators=(",", ":"))
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return f"{value:.10g}"
+    return str(value)
+
+
+def write_results(rows: Sequence[dict], out_dir: str | Path, stem: str = "results") -> tuple[Path, Path]:
+    """Write ``<stem>.csv`` and ``<stem>.json`` (same columns, stable order, deterministic formatting).
+
+    Missing / NaN values are empty cells in CSV and ``null`` in JSON; poses are JSON nested lists.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    columns = ordered_columns(rows)
+    csv_path, json_path = out_dir / f"{stem}.csv", out_dir / f"{stem}.json"
+    with csv_path.open("w", newline="") as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(columns)
+        for row in rows:
+            writer.writerow([_csv_cell(row.get(c)) for c in columns])
+    payload = [{c: _plain(row.get(c)) for c in columns} for row in rows]
+    json_path.write_text(json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
+    return csv_path, json_path
+
+
+def read_results(path: str | Path) -> list[dict]:
+    """Rows back from a results JSON (``null`` in float columns becomes NaN)."""
+    rows = json.loads(Path(path).read_text())
+    for row in rows:
+        for col in FLOAT_COLUMNS:
+            if col in row and row[col] is None and col != "magnitude":
+                row[col] = math.nan
+    return rows

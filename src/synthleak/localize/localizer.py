@@ -1,0 +1,181 @@
+"""In-process localization against a map: features -> retrieval -> 2D-3D matches -> RANSAC PnP."""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+from PIL import Image
+
+from synthleak.config import LocalizeConfig
+from synthleak.localize.defense import DefenseDecision, DefensePolicy
+from synthleak.localize.features import Features
+from synthleak.localize.retrieval import RETRIEVAL_METHODS, BowIndex
+from synthleak.localize.store import MapData, read_map
+from synthleak.localize.tiers import Tier, get_tier
+from synthleak.render.base import Camera
+
+RANSAC_SEED = 0
+
+
+@dataclass
+class LocalizationResult:
+    """Outcome of one query. ``cam_from_world`` is a 4x4 float64 pose or None (not localized)."""
+
+    success: bool
+    cam_from_world: np.ndarray | None = None
+    num_inliers: int = 0
+    num_matches: int = 0
+    inlier_instance_counts: dict[int, int] = field(default_factory=dict)
+    defense: DefenseDecision | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+    """Seconds: ``features``, ``matching`` (retrieval + matching), ``pnp``, ``total``."""
+
+
+class InvalidImageError(ValueError):
+    """Query image bytes/array that cannot be used."""
+
+
+def decode_image(image: np.ndarray | bytes) -> np.ndarray:
+    """(H, W, 3) uint8 RGB from an array (grey, RGB or RGBA) or encoded bytes (PNG, JPEG, ...)."""
+    if isinstance(image, bytes | bytearray | memoryview):
+        if not len(image):
+            raise InvalidImageError("empty image")
+        try:
+            with Image.open(io.BytesIO(bytes(image))) as im:
+                return np.asarray(im.convert("RGB"))
+        except (OSError, ValueError, Image.DecompressionBombError) as exc:
+            raise InvalidImageError(f"not a decodable image ({exc.__class__.__name__})") from exc
+    arr = np.asarray(image)
+    if arr.dtype != np.uint8:
+        raise InvalidImageError(f"image array must be uint8, got {arr.dtype}")
+    if arr.ndim == 2:
+        arr = np.repeat(arr[..., None], 3, axis=2)
+    if arr.ndim != 3 or arr.shape[2] not in (3, 4):
+        raise InvalidImageError(f"image array must be (H, W[, 3|4]), got shape {arr.shape}")
+    return np.ascontiguousarray(arr[..., :3])
+
+
+class Localizer:
+    """Answers pose queries against one map. Not thread-safe (serialise calls)."""
+
+    def __init__(
+        self,
+        data: MapData,
+        tier: Tier,
+        config: LocalizeConfig,
+        defense: DefensePolicy | None = None,
+        weights_dir: Path | None = None,
+        decision_log: Path | None = None,
+    ) -> None:
+        if config.retrieval not in RETRIEVAL_METHODS:
+            raise ValueError(f"LocalizeConfig.retrieval: unknown method {config.retrieval!r} "
+                             f"(known: {', '.join(RETRIEVAL_METHODS)})")
+        self.data, self.tier, self.config = data, tier, config
+        self.defense = defense or DefensePolicy()
+        self.decision_log = decision_log
+        self.extractor = tier.make_extractor(config.max_keypoints, weights_dir)
+        self.matcher = tier.make_matcher(weights_dir)
+        self.min_inliers = config.min_inliers or tier.min_inliers
+        self.max_error_px = config.pnp_max_error_px or tier.pnp_max_error_px
+        # Only keypoints with a 3D point take part in 2D-3D matching.
+        self._db: list[tuple[Features, np.ndarray]] = []
+        for f, idx in zip(data.features, data.point_index, strict=True):
+            keep = np.nonzero(idx >= 0)[0]
+            self._db.append((f.subset(keep), idx[keep]))
+        self._bow: BowIndex | None = None
+
+    @classmethod
+    def load(
+        cls,
+        map_dir: Path,
+        config: LocalizeConfig | None = None,
+        defense: DefensePolicy | None = None,
+        weights_dir: Path | None = None,
+        decision_log: Path | None = None,
+    ) -> Localizer:
+        """Load a map built by :func:`synthleak.localize.build_map`; the tier is the map's."""
+        map_dir = Path(map_dir)
+        data = read_map(map_dir)
+        loc = cls(data, get_tier(data.meta["tier"]), config or LocalizeConfig(), defense, weights_dir,
+                  decision_log)
+        if loc.config.retrieval == "bow":
+            with np.load(map_dir / "bow.npz") as arrays:
+                loc._bow = BowIndex.from_arrays(arrays)
+        return loc
+
+    @property
+    def camera(self) -> Camera:
+        """The map's intrinsics (used when a query gives none)."""
+        return self.data.camera
+
+    def _candidates(self, query: Features) -> np.ndarray:
+        if self._bow is None:
+            return np.arange(len(self._db))
+        return np.sort(self._bow.query(query, self.config.top_k))
+
+    def localize(self, image: np.ndarray | bytes, camera: Camera | None = None) -> LocalizationResult:
+        """Pose of ``image`` (RGB array or encoded bytes) or not localized."""
+        t0 = time.perf_counter()
+        rgb = decode_image(image)
+        camera = camera or self.camera
+        if (rgb.shape[1], rgb.shape[0]) != (camera.width, camera.height):
+            raise InvalidImageError(f"image is {rgb.shape[1]}x{rgb.shape[0]} but the camera is "
+                                    f"{camera.width}x{camera.height}")
+        query = self.extractor(rgb)
+        t1 = time.perf_counter()
+        pairs = set()
+        for i in self._candidates(query):
+            db_features, db_points = self._db[i]
+            m = self.matcher(query, db_features)
+            pairs.update(zip(m[:, 0].tolist(), db_points[m[:, 1]].tolist(), strict=True))
+        corr = np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
+        t2 = time.perf_counter()
+        result = self._pnp(query, corr, camera)
+        t3 = time.perf_counter()
+        result.timings = {"features": t1 - t0, "matching": t2 - t1, "pnp": t3 - t2, "total": t3 - t0}
+        return result
+
+    def _pnp(self, query: Features, corr: np.ndarray, camera: Camera) -> LocalizationResult:
+        if len(corr) < max(self.min_inliers, 4):
+            return LocalizationResult(False, num_matches=len(corr))
+        cam = pycolmap.Camera(model="PINHOLE", width=camera.width, height=camera.height,
+                              params=[camera.fx, camera.fy, camera.cx, camera.cy])
+        options = pycolmap.AbsolutePoseEstimationOptions()
+        options.ransac.max_error = float(self.max_error_px)
+        options.ransac.random_seed = RANSAC_SEED
+        est = pycolmap.estimate_and_refine_absolute_pose(
+            query.keypoints[corr[:, 0]], self.data.xyz[corr[:, 1]], cam, options
+        )
+        if est is None:
+            return LocalizationResult(False, num_matches=len(corr))
+        inliers = corr[np.asarray(est["inlier_mask"], dtype=bool)]
+        _, first = np.unique(inliers[:, 0], return_index=True)  # one vote per query keypoint
+        counts = Counter(int(self.data.instance[p]) for p in inliers[first, 1])
+        counts_sorted = {k: counts[k] for k in sorted(counts)}
+        num_inliers = len(first)
+        pose = np.eye(4)
+        pose[:3] = est["cam_from_world"].matrix()
+        success = num_inliers >= self.min_inliers
+        decision = self.defense.apply(counts_sorted) if success else None
+        if decision is not None:
+            self._log(decision, num_inliers)
+            if self.defense.enabled and not decision.accepted:
+                success = False
+        return LocalizationResult(
+            success, pose if success else None, num_inliers, len(corr), counts_sorted, decision
+        )
+
+    def _log(self, decision: DefenseDecision, num_inliers: int) -> None:
+        if self.decision_log is None:
+            return
+        record = {"time": time.time(), "enabled": self.defense.enabled, "num_inliers": num_inliers,
+                  **decision.to_json()}
+        with open(self.decision_log, "a") as fh:
+            fh.write(json.dumps(record) + "\n")

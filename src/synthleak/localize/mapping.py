@@ -1,0 +1,176 @@
+"""Build a localization map from a walk-through with known GT poses (HLoc "triangulation from poses").
+
+Features on the map frames -> pairs from poses -> matching, filtered by the epipolar geometry of the
+known poses -> tracks -> DLT triangulation with the GT poses -> COLMAP model + npz files (see
+:mod:`synthleak.localize.store`). Each 3D point gets the majority GT instance id under its observations.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+
+from synthleak.config import LocalizeConfig
+from synthleak.localize.features import Features
+from synthleak.localize.pairs import pairs_from_poses
+from synthleak.localize.progress import track
+from synthleak.localize.retrieval import BowIndex
+from synthleak.localize.sequence import SequenceError, SequenceFiles, read_sequence
+from synthleak.localize.store import FORMAT_VERSION, camera_to_json
+from synthleak.localize.tiers import get_tier
+from synthleak.localize.triangulation import (
+    build_tracks,
+    epipolar_distance,
+    fundamental_from_poses,
+    triangulate_track,
+)
+
+EPIPOLAR_MAX_PX = 4.0
+TRIANGULATION_MAX_ERROR_PX = 4.0
+TRIANGULATION_MIN_ANGLE_DEG = 1.0
+
+
+def inputs_hash(seq: SequenceFiles) -> str:
+    """sha256 over the camera, poses, split and the map frames' images and instance masks."""
+    digest = hashlib.sha256()
+    files = [seq.root / "colmap" / "cameras.txt", seq.root / "colmap" / "images.txt", seq.root / "split.json"]
+    for name in seq.map_frames:
+        files += [seq.image_path(name), seq.instance_path(name)]
+    for path in files:
+        digest.update(str(path.relative_to(seq.root)).encode())
+        digest.update(path.read_bytes() if path.is_file() else b"<missing>")
+    return digest.hexdigest()
+
+
+def _map_settings(tier: str, config: LocalizeConfig) -> dict:
+    return {"tier": tier, "max_keypoints": config.max_keypoints, "pairs_per_image": config.pairs_per_image,
+            "format_version": FORMAT_VERSION}
+
+
+def build_map(
+    sequence_dir: Path,
+    tier: str,
+    out_dir: Path,
+    config: LocalizeConfig | None = None,
+    progress: bool = True,
+    weights_dir: Path | None = None,
+) -> Path:
+    """Build (or reuse, if ``map.json`` matches the inputs' hash and settings) the map of a sequence.
+
+    Returns ``out_dir``. ``weights_dir`` is only used by the ``disk-lightglue`` tier.
+    """
+    config = config or LocalizeConfig()
+    sequence_dir, out_dir = Path(sequence_dir), Path(out_dir)
+    tier_spec = get_tier(tier)
+    seq = read_sequence(sequence_dir)
+    if len(seq.map_frames) < 2:
+        raise SequenceError(f"{sequence_dir / 'split.json'}: field 'map' needs at least 2 frames")
+    digest = inputs_hash(seq)
+    settings = _map_settings(tier, config)
+    meta_path = out_dir / "map.json"
+    if meta_path.is_file():
+        old = json.loads(meta_path.read_text())
+        if old.get("inputs_sha256") == digest and old.get("settings") == settings:
+            return out_dir
+
+    extractor = tier_spec.make_extractor(config.max_keypoints, weights_dir)
+    matcher = tier_spec.make_matcher(weights_dir)
+    names = list(seq.map_frames)
+    poses = [seq.cam_from_world[n] for n in names]
+    features: list[Features] = [extractor(seq.rgb(n)) for n in track(names, "features", progress)]
+
+    k = seq.camera.K
+    matches: dict[tuple[int, int], np.ndarray] = {}
+    pairs = pairs_from_poses(poses, config.pairs_per_image)
+    for i, j in track(pairs, "matching", progress):
+        m = matcher(features[i], features[j])
+        if len(m):
+            f = fundamental_from_poses(k, poses[i], poses[j])
+            err = epipolar_distance(f, features[i].keypoints[m[:, 0]], features[j].keypoints[m[:, 1]])
+            m = m[err < EPIPOLAR_MAX_PX]
+        if len(m):
+            matches[(i, j)] = m
+
+    tracks = build_tracks([len(f) for f in features], matches) if matches else []
+    projections = np.stack([k @ p[:3] for p in poses])
+    centres = np.stack([np.linalg.inv(p)[:3, 3] for p in poses])
+    keypoints = [f.keypoints for f in features]
+    points = [p for t in track(tracks, "triangulation", progress)
+              if (p := triangulate_track(t, keypoints, projections, centres, TRIANGULATION_MAX_ERROR_PX,
+                                         TRIANGULATION_MIN_ANGLE_DEG)) is not None]
+
+    masks = [seq.instance(n) for n in names]
+    instance = np.array([_vote(p.track, keypoints, masks) for p in points], dtype=np.int64)
+    point_index = [np.full(len(f), -1, np.int64) for f in features]
+    for pid, p in enumerate(points):
+        for img, kp in p.track:
+            point_index[img][kp] = pid
+
+    if out_dir.exists():
+        for name in ("sfm", "map.json"):
+            target = out_dir / name
+            shutil.rmtree(target) if target.is_dir() else target.unlink(missing_ok=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    colmap_ids = _write_colmap(out_dir / "sfm", seq, names, poses, features, points)
+    arrays = {"names": np.array(names), "binary": np.array(features[0].binary if features else False)}
+    for i, f in enumerate(features):
+        arrays |= {f"kp_{i}": f.keypoints, f"desc_{i}": f.descriptors, f"p3d_{i}": point_index[i]}
+    np.savez(out_dir / "features.npz", **arrays)
+    xyz = np.array([p.xyz for p in points]).reshape(-1, 3)
+    np.savez(out_dir / "points.npz", xyz=xyz, instance=instance, colmap_id=np.array(colmap_ids, np.int64),
+             error=np.array([p.error_px for p in points]),
+             track_length=np.array([len(p.track) for p in points]))
+    (out_dir / "points_instance.json").write_text(
+        json.dumps({str(c): int(i) for c, i in zip(colmap_ids, instance, strict=True)})
+    )
+    np.savez(out_dir / "bow.npz", **BowIndex.build(features).to_arrays())
+    meta = {
+        "format_version": FORMAT_VERSION,
+        "tier": tier,
+        "sequence": str(sequence_dir),
+        "inputs_sha256": digest,
+        "settings": settings,
+        "camera": camera_to_json(seq.camera),
+        "num_images": len(names),
+        "num_pairs": len(pairs),
+        "num_points": len(points),
+        "mean_track_length": float(np.mean([len(p.track) for p in points])) if points else 0.0,
+    }
+    meta_path.write_text(json.dumps(meta, indent=1))  # written last: marks a complete map
+    return out_dir
+
+
+def _vote(obs: list[tuple[int, int]], keypoints: list[np.ndarray], masks: list[np.ndarray]) -> int:
+    votes = Counter()
+    for img, kp in obs:
+        h, w = masks[img].shape
+        x, y = keypoints[img][kp]
+        votes[int(masks[img][min(max(int(y), 0), h - 1), min(max(int(x), 0), w - 1)])] += 1
+    return min(votes.items(), key=lambda kv: (-kv[1], kv[0]))[0]
+
+
+def _write_colmap(path: Path, seq: SequenceFiles, names, poses, features, points) -> list[int]:
+    cam = seq.camera
+    rec = pycolmap.Reconstruction()
+    camera = pycolmap.Camera(model="PINHOLE", width=cam.width, height=cam.height,
+                             params=[cam.fx, cam.fy, cam.cx, cam.cy])
+    camera.camera_id = 1
+    rec.add_camera_with_trivial_rig(camera)
+    for i, (name, pose, f) in enumerate(zip(names, poses, features, strict=True)):
+        image = pycolmap.Image(name=name, keypoints=f.keypoints, camera_id=1, image_id=i + 1)
+        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pose[:3]))
+    ids = []
+    for p in points:
+        t = pycolmap.Track()
+        for img, kp in p.track:
+            t.add_element(img + 1, kp)
+        ids.append(int(rec.add_point3D(p.xyz, t)))
+    path.mkdir(parents=True, exist_ok=True)
+    rec.write(str(path))
+    return ids

@@ -1,0 +1,37 @@
+"""Nearest-neighbour descriptor matching with Lowe's ratio test and an optional mutual check."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from synthleak.localize.features import Features
+
+_POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.float32)
+
+
+def distance_matrix(a: np.ndarray, b: np.ndarray, binary: bool) -> np.ndarray:
+    """(Na, Nb) L2 distances (float) or Hamming distances (packed uint8 bits)."""
+    if binary:
+        bits_a = np.unpackbits(a, axis=1).astype(np.float32)
+        bits_b = np.unpackbits(b, axis=1).astype(np.float32)
+        return bits_a.sum(1, keepdims=True) + bits_b.sum(1)[None] - 2.0 * bits_a @ bits_b.T
+    a = a.astype(np.float32)
+    b = b.astype(np.float32)
+    sq = (a * a).sum(1, keepdims=True) + (b * b).sum(1)[None] - 2.0 * a @ b.T
+    return np.sqrt(np.maximum(sq, 0.0))
+
+
+def match_features(a: Features, b: Features, ratio: float, mutual: bool) -> np.ndarray:
+    """(M, 2) int indices ``(i in a, j in b)``; ratio <= 0 or >= 1 disables the ratio test."""
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((0, 2), np.int64)
+    dist = distance_matrix(a.descriptors, b.descriptors, a.binary)
+    nn = np.argmin(dist, axis=1)
+    keep = np.ones(len(a), dtype=bool)
+    if 0.0 < ratio < 1.0 and dist.shape[1] > 1:
+        two = np.partition(dist, 1, axis=1)[:, :2]
+        keep &= two[:, 0] < ratio * two[:, 1]
+    if mutual:
+        keep &= np.argmin(dist, axis=0)[nn] == np.arange(len(a))
+    idx = np.nonzero(keep)[0]
+    return np.stack([idx, nn[idx]], axis=1).astype(np.int64)

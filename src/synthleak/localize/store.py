@@ -1,0 +1,73 @@
+"""On-disk map format (``map_dir/``) shared by mapping and localization.
+
+* ``map.json``: tier, inputs' content hash, config, camera, counts, format version;
+* ``features.npz``: per map image ``kp_<i>`` (N, 2), ``desc_<i>``, ``p3d_<i>`` (N,) index into the
+  points (-1: none), plus ``names`` and ``binary``;
+* ``points.npz``: ``xyz`` (P, 3), ``instance`` (P,) majority GT instance id, ``error`` (px), ``track_length``,
+  ``colmap_id`` (P,) the point's id in ``sfm/``;
+* ``points_instance.json``: ``{colmap point3D id: instance id}`` (server-only labels for the defense);
+* ``bow.npz``: bag-of-words retrieval index; ``sfm/``: the COLMAP model (binary) with the GT poses.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from synthleak.localize.features import Features
+from synthleak.render.base import Camera
+
+FORMAT_VERSION = 1
+
+
+class MapError(ValueError):
+    """A map folder that cannot be used; names the file and the field."""
+
+
+@dataclass
+class MapData:
+    """Everything the localizer needs, in memory."""
+
+    meta: dict
+    camera: Camera
+    names: list[str]
+    features: list[Features]
+    point_index: list[np.ndarray]
+    xyz: np.ndarray
+    instance: np.ndarray
+
+
+def camera_to_json(camera: Camera) -> dict:
+    return {"width": camera.width, "height": camera.height, "fx": camera.fx, "fy": camera.fy,
+            "cx": camera.cx, "cy": camera.cy}
+
+
+def read_map(map_dir: Path) -> MapData:
+    """Load ``map.json``, ``features.npz`` and ``points.npz``."""
+    map_dir = Path(map_dir)
+    meta_path = map_dir / "map.json"
+    if not meta_path.is_file():
+        raise MapError(f"{meta_path}: missing (build the map with synthleak.localize.build_map)")
+    meta = json.loads(meta_path.read_text())
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise MapError(f"{meta_path}: field 'format_version' is {meta.get('format_version')}, "
+                       f"expected {FORMAT_VERSION}: rebuild the map")
+    try:
+        c = meta["camera"]
+        camera = Camera(int(c["width"]), int(c["height"]), float(c["fx"]), float(c["fy"]),
+                        float(c["cx"]), float(c["cy"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise MapError(f"{meta_path}: field 'camera' is invalid ({exc})") from exc
+    with np.load(map_dir / "features.npz") as data:
+        names = [str(n) for n in data["names"]]
+        binary = bool(data["binary"])
+        size = (camera.width, camera.height)
+        features = [Features(data[f"kp_{i}"], data[f"desc_{i}"], binary, image_size=size)
+                    for i in range(len(names))]
+        point_index = [data[f"p3d_{i}"] for i in range(len(names))]
+    with np.load(map_dir / "points.npz") as data:
+        xyz, instance = data["xyz"], data["instance"]
+    return MapData(meta, camera, names, features, point_index, xyz, instance)

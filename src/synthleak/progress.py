@@ -1,0 +1,26 @@
+"""Progress bars for long loops (rich), silent when disabled or when output is not a terminal log."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from typing import TypeVar
+
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+T = TypeVar("T")
+
+
+def progress_bar(items: Iterable[T], description: str, enabled: bool = True, total: int | None = None
+                 ) -> Iterator[T]:
+    """Iterate over ``items`` with a rich progress bar (a plain iteration when ``enabled`` is False)."""
+    if not enabled:
+        yield from items
+        return
+    if total is None and hasattr(items, "__len__"):
+        total = len(items)  # type: ignore[arg-type]
+    columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, transient=False) as bar:
+        task = bar.add_task(description, total=total)
+        for item in items:
+            yield item
+            bar.advance(task)

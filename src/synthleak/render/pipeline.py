@@ -1,0 +1,242 @@
+"""Render USD stages into the dataset layout of docs/DATASET.md; resumable and deterministic.
+
+A frame is complete when its RGB, depth and instance files all exist (each is written atomically), so an
+interrupted run picks up where it stopped and finishes with the same bytes as an uninterrupted one.
+Sequence metadata (COLMAP, BOP, objects.json, split.json) is written before a sequence's frames (a rerun
+with another config or seed is refused instead of mixing frames) and ``manifest.json`` (sha256 of every
+file) last: its presence marks a finished dataset.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from contextlib import nullcontext
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from synthleak.config import StudyConfig, config_to_dict
+from synthleak.render.base import Camera, RenderScene
+from synthleak.render.dataset import (
+    atomic_write_json,
+    check_existing_plan,
+    clean_temp_files,
+    frame_complete,
+    frame_name,
+    make_split,
+    to_object_frame,
+    write_frame,
+    write_sequence_metadata,
+)
+from synthleak.render.registry import get_renderer
+from synthleak.render.trajectories import orbit, walkthrough
+from synthleak.seeding import derive_seed, make_rng
+
+MANIFEST = "manifest.json"
+PACKAGES = (
+    "synthleak",
+    "numpy",
+    "scipy",
+    "trimesh",
+    "embreex",
+    "mitsuba",
+    "pycolmap",
+    "usd-core",
+    "opencv-python-headless",
+    "pillow",
+    "rich",
+)
+
+
+class StageError(RuntimeError):
+    """A stage file that is missing or cannot be read; the message names the file."""
+
+
+def _progress(enabled: bool) -> Progress:
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        disable=not enabled,
+    )
+
+
+def load_stage(scene_path: Path) -> RenderScene:
+    """``read_render_scene`` with errors that name the stage file."""
+    scene_path = Path(scene_path)
+    if not scene_path.is_file():
+        raise StageError(f"{scene_path}: stage file does not exist")
+    try:
+        from synthleak.scene.usd_io import read_render_scene
+    except ImportError as exc:
+        raise StageError(
+            f"{scene_path}: cannot read stages, synthleak.scene.usd_io unavailable ({exc})"
+        ) from exc
+    try:
+        return read_render_scene(scene_path)
+    except Exception as exc:  # noqa: BLE001 - any reader failure becomes a clear, file-named error
+        raise StageError(f"{scene_path}: cannot read stage: {type(exc).__name__}: {exc}") from exc
+
+
+def plan_poses(scene: RenderScene, config: StudyConfig, kind: str, name: str) -> list:
+    """The sequence's ``cam_from_world`` poses in the stage world (deterministic in seed and name)."""
+    rng = make_rng(config.seed, "trajectory", name)
+    rc = config.render
+    if kind == "scene":
+        return walkthrough(scene, rc.scene_frames, rng)
+    if kind == "attacker":
+        if scene.target_instance_id is None:
+            raise StageError(f"{scene.source or name}: attacker stage has no target_instance_id")
+        return orbit(
+            scene,
+            scene.target_instance_id,
+            rc.attacker_frames,
+            rng,
+            hfov_deg=rc.hfov_deg,
+            aspect=rc.height / rc.width,
+        )
+    raise ValueError(f"kind must be 'scene' or 'attacker', got {kind!r}")
+
+
+def render_scene_sequence(
+    scene: RenderScene,
+    out_dir: Path,
+    config: StudyConfig,
+    kind: str,
+    name: str | None = None,
+    progress: bool | Progress = True,
+) -> Path:
+    """Render one in-memory scene as a sequence folder (skipping complete frames), then its metadata."""
+    out_dir = Path(out_dir)
+    name = name or out_dir.name
+    rc = config.render
+    camera = Camera.from_hfov(rc.width, rc.height, rc.hfov_deg)
+    poses = plan_poses(scene, config, kind, name)
+    frames = [frame_name(i) for i in range(len(poses))]
+    if kind == "attacker":
+        stored_poses, instances = to_object_frame(poses, scene.instances, scene.target_instance_id)
+    else:
+        stored_poses, instances = poses, [scene.instances[i] for i in sorted(scene.instances)]
+    check_existing_plan(out_dir, camera, frames, stored_poses)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    clean_temp_files(out_dir)
+    # the plan (poses, cameras, objects) first: a resumed run with another config is refused above
+    write_sequence_metadata(
+        out_dir,
+        camera=camera,
+        frames=frames,
+        cam_from_world=stored_poses,
+        instances=instances,
+        frame="object" if kind == "attacker" else "world",
+        target_instance_id=scene.target_instance_id if kind == "attacker" else None,
+        split=make_split(frames, rc.query_every) if kind == "scene" else None,
+    )
+    todo = [i for i in range(len(frames)) if not frame_complete(out_dir, frames[i])]
+    if todo:
+        renderer = get_renderer(rc)
+        renderer.prepare(scene)
+        bar = progress if isinstance(progress, Progress) else _progress(bool(progress))
+        with bar if not isinstance(progress, Progress) else nullcontext():
+            task = bar.add_task(f"{kind} {name}", total=len(frames), completed=len(frames) - len(todo))
+            for i in todo:
+                frame = renderer.render(camera, poses[i], derive_seed(config.seed, "render", name, i))
+                write_frame(out_dir, frames[i], frame)
+                bar.advance(task)
+    return out_dir
+
+
+def render_sequence(
+    scene_path: Path, out_dir: Path, config: StudyConfig, kind: str, progress: bool | Progress = True
+) -> Path:
+    """Render the stage at ``scene_path`` into ``out_dir`` (``kind``: ``scene`` or ``attacker``)."""
+    scene = load_stage(scene_path)
+    return render_scene_sequence(scene, out_dir, config, kind, Path(out_dir).name, progress)
+
+
+def _read_index(stages_dir: Path) -> dict[str, Any]:
+    path = Path(stages_dir) / "index.json"
+    if not path.is_file():
+        raise StageError(f"{path}: stage index does not exist (run `synthleak scenes` first)")
+    try:
+        index = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise StageError(f"{path}: not valid JSON ({exc})") from exc
+    for key in ("rooms", "attacker_objects"):
+        if not isinstance(index.get(key), list):
+            raise StageError(f"{path}: field {key!r} must be a list")
+    for i, room in enumerate(index["rooms"]):
+        for key in ("name", "stage"):
+            if not isinstance(room.get(key), str):
+                raise StageError(f"{path}: rooms[{i}].{key} must be a string")
+    for i, obj in enumerate(index["attacker_objects"]):
+        for key in ("id", "stage"):
+            if not isinstance(obj.get(key), str):
+                raise StageError(f"{path}: attacker_objects[{i}].{key} must be a string")
+    return index
+
+
+def render_stages(config: StudyConfig, stages_dir: Path, out_dir: Path, progress: bool = True) -> Path:
+    """Render every room (``out_dir/scenes/<room>``) and attacker object (``out_dir/attackers/<id>``) of
+    ``stages_dir/index.json``, then write ``out_dir/manifest.json``."""
+    stages_dir, out_dir = Path(stages_dir), Path(out_dir)
+    index = _read_index(stages_dir)
+    jobs = [(stages_dir / r["stage"], out_dir / "scenes" / r["name"], "scene") for r in index["rooms"]]
+    jobs += [
+        (stages_dir / a["stage"], out_dir / "attackers" / a["id"], "attacker")
+        for a in index["attacker_objects"]
+    ]
+    missing = [str(stage) for stage, _, _ in jobs if not stage.is_file()]
+    if missing:
+        raise StageError(f"{stages_dir / 'index.json'}: stage files do not exist: {', '.join(missing)}")
+    with _progress(progress) as bar:
+        for stage, seq_dir, kind in jobs:
+            render_sequence(stage, seq_dir, config, kind, progress=bar)
+    write_manifest(out_dir, config)
+    return out_dir
+
+
+def generate(config: StudyConfig, out_dir: Path, progress: bool = True) -> Path:
+    """Stages (``out_dir/stages``) and their renders in one go; resumable."""
+    from synthleak.scene.generate import write_study_stages
+
+    out_dir = Path(out_dir)
+    written = Path(write_study_stages(config, out_dir / "stages", progress=progress))
+    stages_dir = written.parent if written.is_file() else written  # index.json path or its folder
+    return render_stages(config, stages_dir, out_dir, progress)
+
+
+def _versions() -> dict[str, str | None]:
+    found: dict[str, str | None] = {}
+    for name in PACKAGES:
+        try:
+            found[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            found[name] = None
+    return found
+
+
+def sha256_file(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def write_manifest(out_dir: Path, config: StudyConfig) -> Path:
+    """``manifest.json``: config, seed, package versions and the sha256 of every other file (sorted)."""
+    out_dir = Path(out_dir)
+    clean_temp_files(out_dir)
+    files = sorted(p for p in out_dir.rglob("*") if p.is_file() and p.name != MANIFEST)
+    manifest = {
+        "config": config_to_dict(config),
+        "seed": config.seed,
+        "packages": _versions(),
+        "files": {p.relative_to(out_dir).as_posix(): sha256_file(p) for p in files},
+    }
+    atomic_write_json(out_dir / MANIFEST, manifest)
+    return out_dir / MANIFEST

@@ -1,0 +1,260 @@
+"""pyrender (OpenGL raster) backend, headless on CPU through Mesa's software EGL.
+
+Fast preview-quality RGB with the same ground truth as the other backends:
+
+* RGB: pyrender's metallic-roughness shader (4x MSAA), flat-shaded faces as in mitsuba, sRGB textures,
+  ``sphere`` lights as point lights, ``rect`` lights as spot lights along -z of their frame (radiant
+  intensity ``radiance * area``), ``distant`` lights as directional lights, ``ambient`` as ambient light
+  and background colour.
+  Light units match mitsuba's (W/sr, irradiance): pyrender's BRDF carries the 1/pi of a Lambertian.
+  Optional shadow maps for spot and directional lights (pyrender has none for point lights).
+* depth and instance ids: one flat-colour segmentation pass with multisampling off, so every pixel is
+  rasterised at its centre ``(u + 0.5, v + 0.5)`` (GL's rasterisation rule, the same convention as
+  :class:`~synthleak.render.base.Camera`). The 16-bit id is packed into R (high byte) and G (low byte);
+  z-depth is pyrender's linearised z-buffer (24-bit, near plane ``ZNEAR``).
+
+pyrender's ``IntrinsicsCamera`` (``P[0,2] = 1 - 2 cx / W``, ``P[1,2] = 2 cy / H - 1``) puts an OpenCV
+camera point (x, y, z) at column ``cx + fx x / z`` and, after pyrender flips the read-back image, row
+``cy + fy y / z``, with ``cx``, ``cy`` measured from the image corner: the convention of ``Camera`` as is (no
+half-pixel shift, no cy flip); ``tests/test_backends.py`` checks it against the exact ray cast.
+
+Renders are deterministic (no random sampling; ``seed`` is unused).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from synthleak.config import RenderConfig
+from synthleak.render.base import Camera, Frame, RenderMesh, RenderScene
+from synthleak.scene.spec import Light
+
+INSTALL_HINT = (
+    "pip install -e '.[pyrender]' (pyrender 0.1.45, pins PyOpenGL 3.1.0) and the Mesa EGL libraries "
+    "(Debian: apt-get install libegl1 libgl1-mesa-dri); headless rendering uses PYOPENGL_PLATFORM=egl"
+)
+ZNEAR = 0.05
+"""Near clip plane (m): surfaces closer than this to the camera are not rendered."""
+ZFAR = 1000.0
+# OpenCV camera axes (x right, y down, z forward) -> OpenGL camera axes (x right, y up, z backward).
+_CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
+_RECT_CONE = np.radians(80.0)
+"""Outer cone half-angle of the spot light standing in for a rect (hemispherical) light."""
+
+
+class PyrenderUnavailable(ImportError):
+    """pyrender or a headless OpenGL platform is missing; the message says how to install it."""
+
+
+def _pyrender() -> Any:
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    try:
+        import pyrender
+    except Exception as exc:  # ImportError, or OpenGL failing to load libEGL
+        msg = f"renderer 'pyrender' is unavailable ({exc}); install: {INSTALL_HINT}"
+        raise PyrenderUnavailable(msg) from exc
+    return pyrender
+
+
+def _flat_primitive(pyrender: Any, mesh: RenderMesh) -> Any:
+    """A pyrender primitive with per-face normals (vertices unshared) and the mesh's material."""
+    verts = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
+    faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    if len(verts) == 0 or len(faces) == 0:
+        raise ValueError(f"mesh {mesh.name!r} (instance {mesh.instance_id}) is empty")
+    if faces.min() < 0 or faces.max() >= len(verts):
+        raise ValueError(f"mesh {mesh.name!r}: face indices outside its {len(verts)} vertices")
+    tri = verts[faces]  # (F, 3, 3)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+    textured = mesh.texture is not None and mesh.uv is not None
+    texcoords = None
+    texture = None
+    if textured:
+        uv = np.asarray(mesh.uv, dtype=np.float64).reshape(-1, 2)
+        if len(uv) != len(verts):
+            raise ValueError(f"mesh {mesh.name!r}: {len(uv)} uvs for {len(verts)} vertices")
+        # pyrender uploads image row 0 at t = 1, so v = 0 samples the bottom row: our convention as is.
+        texcoords = uv[faces].reshape(-1, 2).astype(np.float32)
+        image = np.ascontiguousarray(np.asarray(mesh.texture, dtype=np.uint8)[..., :3])
+        texture = pyrender.Texture(source=image, source_channels="RGB")
+    base = (1.0, 1.0, 1.0) if textured else _srgb_to_linear(mesh.base_color)
+    emissive = None
+    if mesh.emissive is not None and max(mesh.emissive) > 0:
+        # pyrender's shader adds emissive_factor squared when there is no emissive texture.
+        emissive = np.sqrt(np.clip(np.asarray(mesh.emissive, dtype=np.float64), 0.0, None))
+    material = pyrender.MetallicRoughnessMaterial(
+        baseColorFactor=(*base, 1.0),
+        baseColorTexture=texture,
+        metallicFactor=float(np.clip(mesh.metallic, 0.0, 1.0)),
+        roughnessFactor=float(np.clip(mesh.roughness, 0.05, 1.0)),
+        emissiveFactor=emissive,
+        doubleSided=True,  # no back-face culling: ground truth sees both sides, like the ray cast
+    )
+    return pyrender.Primitive(
+        positions=tri.reshape(-1, 3).astype(np.float32),
+        normals=np.repeat(normal, 3, axis=0).astype(np.float32),
+        texcoord_0=texcoords,
+        material=material,
+        mode=4,  # GL_TRIANGLES
+    )
+
+
+def _srgb_to_linear(c: tuple[float, float, float]) -> tuple[float, float, float]:
+    x = np.clip(np.asarray(c, dtype=np.float64), 0.0, 1.0)
+    lin = np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+    return (float(lin[0]), float(lin[1]), float(lin[2]))
+
+
+def _linear_to_srgb(x: float) -> float:
+    x = float(np.clip(x, 0.0, 1.0))
+    return 12.92 * x if x <= 0.0031308 else 1.055 * x ** (1.0 / 2.4) - 0.055
+
+
+def _light_node(pyrender: Any, light: Light) -> tuple[Any, np.ndarray]:
+    """A pyrender light and its pose (pyrender lights shine along -z of their node, like ours)."""
+    pose = np.asarray(light.world_from_light, dtype=np.float64)
+    color = np.clip(np.asarray(light.color, dtype=np.float64), 0.0, None)
+    if light.kind == "sphere":
+        return pyrender.PointLight(color=color, intensity=float(light.intensity)), pose
+    if light.kind == "rect":
+        area = float(light.size[0]) * float(light.size[1])
+        spot = pyrender.SpotLight(color=color, intensity=float(light.intensity) * area,
+                                  innerConeAngle=0.0, outerConeAngle=float(_RECT_CONE))
+        return spot, pose
+    if light.kind == "distant":
+        return pyrender.DirectionalLight(color=color, intensity=float(light.intensity)), pose
+    raise ValueError(f"light {light.name!r}: unknown kind {light.kind!r} (sphere | rect | distant)")
+
+
+def gl_camera_pose(cam_from_world: np.ndarray) -> np.ndarray:
+    """pyrender (OpenGL) camera node pose ``world_from_cam_gl`` for an OpenCV ``cam_from_world``."""
+    pose = np.asarray(cam_from_world, dtype=np.float64)
+    world_from_cam = np.eye(4)
+    world_from_cam[:3, :3] = pose[:3, :3].T
+    world_from_cam[:3, 3] = -pose[:3, :3].T @ pose[:3, 3]
+    return world_from_cam @ _CV_TO_GL
+
+
+def encode_ids(ids: np.ndarray) -> np.ndarray:
+    """uint16 ids -> (N, 3) uint8 colours: R = high byte, G = low byte, B = 0."""
+    ids = np.asarray(ids, dtype=np.uint16)
+    return np.stack([ids >> 8, ids & 0xFF, np.zeros_like(ids)], axis=-1).astype(np.uint8)
+
+
+def decode_ids(rgb: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`encode_ids` for an (H, W, 3) uint8 image."""
+    rgb = np.asarray(rgb)
+    return (rgb[..., 0].astype(np.uint16) << 8) | rgb[..., 1].astype(np.uint16)
+
+
+class PyrenderRenderer:
+    """Renderer protocol implementation; see the module docstring."""
+
+    name = "pyrender"
+
+    def __init__(self, shadows: bool = True) -> None:
+        self._pr = _pyrender()
+        self.shadows = shadows
+        self._scene: Any = None
+        self._seg_map: dict[Any, np.ndarray] = {}
+        self._cam_node: Any = None
+        self._renderer: Any = None
+        self._size: tuple[int, int] | None = None
+        self._check_context()
+
+    def _check_context(self) -> None:
+        """Fail at construction, not at the first frame, when no GL context can be made."""
+        try:
+            self._viewport(8, 8)
+        except Exception as exc:
+            raise PyrenderUnavailable(
+                f"renderer 'pyrender' cannot create a headless OpenGL context "
+                f"(PYOPENGL_PLATFORM={os.environ.get('PYOPENGL_PLATFORM')}): {exc}; install: {INSTALL_HINT}"
+            ) from exc
+
+    def _viewport(self, width: int, height: int) -> Any:
+        if self._renderer is None:
+            self._renderer = self._pr.OffscreenRenderer(width, height)
+        elif self._size != (width, height):
+            self._renderer.viewport_width = width
+            self._renderer.viewport_height = height
+        self._size = (width, height)
+        return self._renderer
+
+    def prepare(self, scene: RenderScene) -> None:
+        """Build the pyrender scene once: one node per mesh, its id colour, the lights."""
+        pr = self._pr
+        if not scene.meshes:
+            raise ValueError("pyrender: the scene has no meshes")
+        ambient = float(max(scene.ambient, 0.0))
+        bg = _linear_to_srgb(ambient)  # the background shows the ambient environment, as in mitsuba
+        pscene = pr.Scene(bg_color=(bg, bg, bg, 1.0), ambient_light=(ambient, ambient, ambient))
+        seg_map: dict[Any, np.ndarray] = {}
+        for mesh in scene.meshes:
+            if not 0 <= int(mesh.instance_id) <= 0xFFFF:
+                raise ValueError(f"mesh {mesh.name!r}: instance_id {mesh.instance_id} does not fit uint16")
+            primitive = _flat_primitive(pr, mesh)
+            pmesh = pr.Mesh([primitive], name=mesh.name)
+            # pyrender 0.1.45's Mesh.bounds uses np.infty (gone in numpy 2): preset the cached bounds.
+            pmesh._bounds = np.asarray(primitive.bounds, dtype=np.float64).copy()
+            node = pscene.add(pmesh)
+            seg_map[node] = encode_ids(np.array(mesh.instance_id))
+        for light in scene.lights:
+            plight, pose = _light_node(pr, light)
+            pscene.add(plight, pose=pose, name=light.name)
+        self._cam_node = pscene.add(pr.IntrinsicsCamera(1.0, 1.0, 0.5, 0.5, znear=ZNEAR, zfar=ZFAR))
+        self._scene, self._seg_map = pscene, seg_map
+
+    def _set_camera(self, camera: Camera, cam_from_world: np.ndarray) -> None:
+        cam = self._cam_node.camera
+        cam.fx, cam.fy = float(camera.fx), float(camera.fy)
+        cam.cx, cam.cy = float(camera.cx), float(camera.cy)
+        self._scene.set_pose(self._cam_node, gl_camera_pose(cam_from_world))
+
+    def render_ground_truth(self, camera: Camera, cam_from_world: np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray]:
+        """(z-depth float32 (H, W), +inf no hit; instance uint16 (H, W)) from the segmentation pass."""
+        if self._scene is None:
+            raise RuntimeError("PyrenderRenderer.render before prepare(scene)")
+        self._set_camera(camera, cam_from_world)
+        flags = self._pr.RenderFlags.SEG | self._pr.RenderFlags.SKIP_CULL_FACES
+        seg, depth = self._viewport(camera.width, camera.height).render(
+            self._scene, flags=flags, seg_node_map=self._seg_map
+        )
+        depth = np.asarray(depth, dtype=np.float32).copy()
+        depth[depth <= 0] = np.inf
+        return depth, decode_ids(seg)
+
+    def render_rgb(self, camera: Camera, cam_from_world: np.ndarray) -> np.ndarray:
+        """sRGB uint8 (H, W, 3) (pyrender's gamma-2.2 output)."""
+        if self._scene is None:
+            raise RuntimeError("PyrenderRenderer.render before prepare(scene)")
+        rf = self._pr.RenderFlags
+        self._set_camera(camera, cam_from_world)
+        flags = rf.SKIP_CULL_FACES
+        if self.shadows:
+            flags |= rf.SHADOWS_SPOT | rf.SHADOWS_DIRECTIONAL
+        color, _ = self._viewport(camera.width, camera.height).render(self._scene, flags=flags)
+        return np.ascontiguousarray(color[..., :3], dtype=np.uint8)
+
+    def render(self, camera: Camera, cam_from_world: np.ndarray, seed: int) -> Frame:
+        del seed  # rasterisation takes no random samples
+        depth, instance = self.render_ground_truth(camera, cam_from_world)
+        return Frame(rgb=self.render_rgb(camera, cam_from_world), depth=depth, instance=instance)
+
+    def close(self) -> None:
+        """Release the GL context (also released at interpreter exit)."""
+        if self._renderer is not None:
+            self._renderer.delete()
+            self._renderer = None
+
+
+def create_pyrender_renderer(config: RenderConfig) -> PyrenderRenderer:
+    """Registry factory: ``[render] renderer = "pyrender"``; ``spp``/``filter`` do not apply (4x MSAA)."""
+    del config
+    return PyrenderRenderer()

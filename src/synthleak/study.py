@@ -1,0 +1,395 @@
+"""`synthleak study`: stages -> renders -> maps -> queries -> attack -> scores -> report, resumable.
+
+Every stage writes into its own folder under the study's output and records a content key
+(:mod:`synthleak.cache`); a rerun skips stages whose inputs did not change, so changing a scoring
+threshold re-runs only the attack and the report, and changing a tier does not re-render.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from synthleak.cache import cache_key, is_done, mark_done, write_text_atomic
+from synthleak.config import StudyConfig, config_to_dict
+from synthleak.progress import progress_bar
+
+STAGES = ("render", "maps", "queries", "attack", "report")
+
+
+@dataclass
+class StudyPaths:
+    """Where each stage of a study writes."""
+
+    root: Path
+
+    @property
+    def dataset(self) -> Path:
+        return self.root / "dataset"
+
+    @property
+    def maps(self) -> Path:
+        return self.root / "maps"
+
+    @property
+    def queries(self) -> Path:
+        return self.root / "queries"
+
+    @property
+    def results(self) -> Path:
+        return self.root / "results"
+
+    @property
+    def plots(self) -> Path:
+        return self.root / "plots"
+
+    @property
+    def report(self) -> Path:
+        return self.root / "report.md"
+
+
+def _section(config: StudyConfig, name: str) -> dict[str, Any]:
+    return config_to_dict(config)[name]
+
+
+def _check_force(force: Sequence[str]) -> set[str]:
+    unknown = set(force) - set(STAGES)
+    if unknown:
+        raise ValueError(f"--force: unknown stage(s) {sorted(unknown)} (stages: {', '.join(STAGES)})")
+    return set(force)
+
+
+def load_index(dataset: Path) -> dict[str, Any]:
+    """The study plan written with the stages (rooms, attacker objects, presence)."""
+    path = dataset / "stages" / "index.json"
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise FileNotFoundError(f"{path}: missing study index (run the render stage first)") from exc
+
+
+# ----------------------------------------------------------------------------------------------- render
+def stage_render(config: StudyConfig, paths: StudyPaths, force: set[str], progress: bool) -> str:
+    """Stages and renders (the render pipeline resumes frame by frame by itself)."""
+    from synthleak.render.pipeline import generate
+
+    key = cache_key("render", config.seed, _section(config, "scenes"), _section(config, "render"))
+    if "render" not in force and is_done(paths.dataset, key):
+        return key
+    generate(config, paths.dataset, progress=progress)
+    mark_done(paths.dataset, key)
+    return key
+
+
+# ------------------------------------------------------------------------------------------------- maps
+def stage_maps(config: StudyConfig, paths: StudyPaths, render_key: str, force: set[str], progress: bool
+               ) -> dict[tuple[str, str], Path]:
+    """One map per (tier, room)."""
+    from synthleak.localize.mapping import build_map
+
+    index = load_index(paths.dataset)
+    maps: dict[tuple[str, str], Path] = {}
+    for tier in config.localize.tiers:
+        for room in index["rooms"]:
+            out = paths.maps / tier / room["name"]
+            key = cache_key("map", render_key, tier, _section(config, "localize"))
+            if "maps" in force or not is_done(out, key):
+                build_map(paths.dataset / "scenes" / room["name"], tier, out, config.localize, progress=progress)
+                mark_done(out, key)
+            maps[(tier, room["name"])] = out
+    return maps
+
+
+# ---------------------------------------------------------------------------------------------- queries
+def _query_plan(config: StudyConfig, paths: StudyPaths, room: str, index: dict[str, Any]) -> list[dict]:
+    """Every image sent to one room's server: its genuine held-out frames and every attacker frame."""
+    from synthleak.render.dataset import load_sequence
+
+    scene = load_sequence(paths.dataset / "scenes" / room)
+    plan = [{"sequence": f"scenes/{room}", "frame": f, "genuine": True, "attacker_object": None}
+            for f in scene.split["query"]]
+    for obj in index["attacker_objects"]:
+        seq = load_sequence(paths.dataset / "attackers" / obj["id"])
+        frames = seq.frames[: config.attack.queries_per_object or None]
+        plan += [{"sequence": f"attackers/{obj['id']}", "frame": f, "genuine": False,
+                  "attacker_object": obj["id"]} for f in frames]
+    return plan
+
+
+def _make_localizer(map_dir: Path, config: StudyConfig, server_url: str | None):
+    if server_url:
+        from synthleak.localize.client import HttpLocalizer
+
+        return HttpLocalizer(server_url)
+    from synthleak.localize.localizer import Localizer
+
+    return Localizer.load(map_dir, config.localize)
+
+
+def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, str], Path], force: set[str],
+                  progress: bool, server_url: str | None = None) -> dict[tuple[str, str], Path]:
+    """Send every planned image to each (tier, room) server; log one JSON line per query."""
+    from synthleak.render.dataset import load_sequence
+
+    index = load_index(paths.dataset)
+    logs: dict[tuple[str, str], Path] = {}
+    for (tier, room), map_dir in maps.items():
+        out = paths.queries / tier / room
+        key = cache_key("queries", json.loads((map_dir / ".done.json").read_text())["key"],
+                        config.attack.queries_per_object, server_url)
+        logs[(tier, room)] = out / "queries.jsonl"
+        if "queries" not in force and is_done(out, key):
+            continue
+        localizer = _make_localizer(map_dir, config, server_url)
+        plan = _query_plan(config, paths, room, index)
+        sequences: dict[str, Any] = {}
+        lines = []
+        for item in progress_bar(plan, f"queries {tier}/{room}", enabled=progress):
+            seq = sequences.setdefault(item["sequence"], load_sequence(paths.dataset / item["sequence"]))
+            result = localizer.localize(seq.image_path(item["frame"]).read_bytes(), seq.camera)
+            pose = result.cam_from_world
+            lines.append(json.dumps({
+                **item, "tier": tier, "room": room, "success": bool(result.success),
+                "cam_from_world": None if pose is None else np.asarray(pose).tolist(),
+                "num_inliers": int(getattr(result, "num_inliers", 0) or 0),
+                "inlier_instance_counts": {str(k): int(v) for k, v in
+                                           sorted((getattr(result, "inlier_instance_counts", None) or {}).items())},
+            }, sort_keys=True))
+        write_text_atomic(logs[(tier, room)], "\n".join(lines) + "\n")
+        mark_done(out, key)
+    return logs
+
+
+def read_query_log(path: Path) -> list[dict[str, Any]]:
+    """The query records of one (tier, room)."""
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+# ----------------------------------------------------------------------------------------------- attack
+def _attacker_local_model(config: StudyConfig, paths: StudyPaths, obj_id: str, seq: Any
+                          ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+    """The attacker's local poses (``cam_from_object`` / ``cam_from_local``) and, for SfM, the
+    scoring-only ``object_from_local``."""
+    from synthleak.attack.local_model import oracle_local_poses, sfm_local_poses
+
+    if config.attack.local_model == "oracle":
+        return oracle_local_poses(seq), None
+    if config.attack.local_model == "sfm":
+        target = seq.objects_by_id()[seq.target_instance_id]
+        model = sfm_local_poses(seq, target.extents, paths.root / "sfm" / obj_id)
+        return dict(model.cam_from_local), model.object_from_local
+    raise ValueError(f"attack.local_model: unknown value {config.attack.local_model!r} (oracle, sfm)")
+
+
+def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, str], Path],
+                magnitude: float | None = None, kind: str | None = None) -> list[dict[str, Any]]:
+    """One results row per (room, attacker object, tier, aligner, thresholds), presence decided
+    leave-one-scene-out and placement scored against the room's ground truth."""
+    from synthleak.attack.run import run_attack
+    from synthleak.evaluate.score import score_placement
+    from synthleak.evaluate.tables import apply_presence_decisions
+    from synthleak.render.dataset import load_sequence
+
+    index = load_index(paths.dataset)
+    rooms = {room["name"]: load_sequence(paths.dataset / "scenes" / room["name"]).objects_by_id()
+             for room in index["rooms"]}
+    rows: list[dict[str, Any]] = []
+    for obj in index["attacker_objects"]:
+        seq = load_sequence(paths.dataset / "attackers" / obj["id"])
+        local, object_from_local = _attacker_local_model(config, paths, obj["id"], seq)
+        target = seq.objects_by_id()[seq.target_instance_id]
+        for (tier, room), log in sorted(logs.items()):
+            records = [q for q in read_query_log(log) if q["attacker_object"] == obj["id"]]
+            sent = {q["frame"] for q in records}
+            server = {q["frame"]: None if q["cam_from_world"] is None else np.array(q["cam_from_world"])
+                      for q in records if q["success"]}
+            local_sent = {f: p for f, p in local.items() if f in sent}
+            gt_id = obj.get("present_in", {}).get(room)
+            gt = rooms[room].get(gt_id) if gt_id is not None else None
+            for aligner in config.attack.aligners:
+                for delta_r, delta_t in config.attack.thresholds:
+                    alignment = run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(sent))
+                    estimate = alignment.scene_from_object if alignment.ok else None
+                    score = score_placement(
+                        estimate, None if gt is None else gt.world_from_object,
+                        None if gt is None else gt.extents, target.extents,
+                        symmetry=(gt or target).symmetry, object_from_local=object_from_local)
+                    rows.append({
+                        "room": room, "object": obj["id"], "model_id": obj["model_id"],
+                        "category": target.category, "tier": tier, "aligner": aligner,
+                        "delta_r_deg": float(delta_r), "delta_t_m": float(delta_t), "present_gt": gt is not None,
+                        "eps": float(alignment.eps), "decision": False, "n_queries": len(sent),
+                        "n_localized": len(server), **score, "magnitude": magnitude, "kind": kind,
+                    })
+    return apply_presence_decisions(rows)
+
+
+def stage_attack(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, str], Path], force: set[str]
+                 ) -> list[dict[str, Any]]:
+    """Attack every (room, object) pair and write ``results/results.{csv,json}``."""
+    from synthleak.evaluate.tables import read_results, write_results
+
+    query_keys = [json.loads((log.parent / ".done.json").read_text())["key"] for _, log in sorted(logs.items())]
+    key = cache_key("attack", query_keys, _section(config, "attack"))
+    if "attack" not in force and is_done(paths.results, key):
+        return read_results(paths.results / "results.json")
+    rows = attack_rows(config, paths, logs)
+    write_results(rows, paths.results)
+    mark_done(paths.results, key)
+    return rows
+
+
+# ----------------------------------------------------------------------------------------------- report
+def genuine_localization(paths: StudyPaths, logs: dict[tuple[str, str], Path]) -> list[dict[str, Any]]:
+    """Accuracy of the held-out genuine queries per (tier, room): the server works as a server should."""
+    from synthleak.geometry.poses import camera_centre, rotation_error_deg
+    from synthleak.render.dataset import load_sequence
+
+    out = []
+    for (tier, room), log in sorted(logs.items()):
+        scene = load_sequence(paths.dataset / "scenes" / room)
+        genuine = [q for q in read_query_log(log) if q["genuine"]]
+        rot, trans = [], []
+        for q in genuine:
+            if q["success"]:
+                est, gt = np.array(q["cam_from_world"]), scene.pose(q["frame"])
+                rot.append(rotation_error_deg(est[:3, :3], gt[:3, :3]))
+                trans.append(float(np.linalg.norm(camera_centre(est) - camera_centre(gt))))
+        out.append({"tier": tier, "room": room, "n": len(genuine), "localized": len(rot),
+                    "median_rot_err_deg": float(np.median(rot)) if rot else float("nan"),
+                    "median_trans_err_m": float(np.median(trans)) if trans else float("nan")})
+    return out
+
+
+def defense_queries(logs: dict[tuple[str, str], Path]) -> list[dict[str, Any]]:
+    """The logged query decisions in the form the offline defense sweep reads."""
+    return [{"tier": q["tier"], "room": q["room"], "genuine": q["genuine"], "attacker_object": q["attacker_object"],
+             "success_without_defense": q["success"], "inlier_instance_counts": q["inlier_instance_counts"]}
+            for _, log in sorted(logs.items()) for q in read_query_log(log)]
+
+
+def _markdown_table(rows: list[dict[str, Any]], columns: list[str], digits: int = 3) -> str:
+    def cell(value: Any) -> str:
+        if isinstance(value, float):
+            return "–" if np.isnan(value) else f"{value:.{digits}f}"
+        return str(value)
+
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(cell(r.get(c)) for c in columns) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _room_plots(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]]) -> list[Path]:
+    """Top-down map per room: GT boxes and the estimates the attack decided present (first tier, last
+    aligner, middle thresholds)."""
+    from synthleak.evaluate.plots import plot_room_topdown
+    from synthleak.render.dataset import load_sequence
+
+    tier, aligner = config.localize.tiers[0], config.attack.aligners[-1]
+    delta_r, delta_t = config.attack.thresholds[len(config.attack.thresholds) // 2]
+    out = []
+    for room in load_index(paths.dataset)["rooms"]:
+        scene = load_sequence(paths.dataset / "scenes" / room["name"])
+        objects = [(f"{o.model_id}#{o.instance_id}", o.world_from_object, o.extents)
+                   for o in scene.objects if o.role == "object"]
+        shell = np.array([o.world_from_object[:3, 3] for o in scene.objects if o.role == "shell"]).reshape(-1, 3)
+        lo, hi = (shell.min(axis=0), shell.max(axis=0)) if len(shell) else (np.zeros(3), np.ones(3) * 4)
+        chosen = [r for r in rows if r["room"] == room["name"] and r["tier"] == tier and r["aligner"] == aligner
+                  and r["delta_r_deg"] == delta_r and r["delta_t_m"] == delta_t and r["decision"]
+                  and r["scene_from_object_est"] is not None]
+        estimates = []
+        for r in chosen:
+            gt_name = next((name for name, *_ in objects if name.startswith(f"{r['model_id']}#")), r["object"])
+            extents = next((e for name, _, e in objects if name == gt_name), (0.5, 0.5, 0.5))
+            estimates.append((gt_name, np.array(r["scene_from_object_est"]), extents))
+        cams = np.array([scene.pose(f) for f in scene.frames])
+        out.append(plot_room_topdown(
+            (hi - lo)[:2], objects, estimates, cameras=cams, out=paths.plots / f"room_{room['name']}.png",
+            room_min=lo[:2], title=f"{room['name']}: GT (solid) vs decided-present estimates (dashed), "
+            f"{tier}/{aligner} {delta_r:g}°/{delta_t:g} m"))
+    return out
+
+
+def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]],
+                 logs: dict[tuple[str, str], Path], timings: dict[str, float]) -> Path:
+    """``report.md`` with the paper-shaped tables, placement and defense figures, and the plots."""
+    from synthleak.evaluate.defense_sweep import defense_tradeoff
+    from synthleak.evaluate.plots import plot_defense_tradeoff, plot_placement_cdfs, plot_presence_pr
+    from synthleak.evaluate.tables import (
+        placement_summary,
+        presence_pr_per_room,
+        random_guess_precision,
+        table1_markdown,
+        table2_markdown,
+    )
+
+    paths.plots.mkdir(parents=True, exist_ok=True)
+    genuine = genuine_localization(paths, logs)
+    tradeoff = defense_tradeoff(defense_queries(logs), config.defense.sweep_fractions,
+                                config.defense.sweep_min_instances)
+    write_text_atomic(paths.results / "genuine_localization.json", json.dumps(genuine, indent=1))
+    write_text_atomic(paths.results / "defense_tradeoff.json", json.dumps(tradeoff, indent=1, default=str))
+    plots = [plot_presence_pr(presence_pr_per_room(rows), paths.plots / "presence_pr.png"),
+             plot_placement_cdfs(rows, paths.plots / "placement_cdf.png"),
+             plot_defense_tradeoff(tradeoff, paths.plots / "defense_tradeoff.png"),
+             *_room_plots(config, paths, rows)]
+    index = load_index(paths.dataset)
+    n_present = sum(len(o.get("present_in", {})) for o in index["attacker_objects"])
+    parts = [
+        f"# synthleak study `{config.name}`\n",
+        f"{config.description}\n",
+        f"seed {config.seed}; {len(index['rooms'])} rooms; {len(index['attacker_objects'])} attacker objects; "
+        f"{n_present} present (room, object) pairs of {len(index['rooms']) * len(index['attacker_objects'])}; "
+        f"renderer {config.render.renderer} {config.render.width}x{config.render.height}; "
+        f"tiers {', '.join(config.localize.tiers)}; aligners {', '.join(config.attack.aligners)}; "
+        f"local model {config.attack.local_model}.\n",
+        "## Genuine queries (held-out walk-through frames)\n",
+        _markdown_table(genuine, ["tier", "room", "n", "localized", "median_rot_err_deg", "median_trans_err_m"]),
+        "## Presence (paper Table 1 shape)\n",
+        f"Random-guess precision baseline: {random_guess_precision(rows):.3f}\n",
+        table1_markdown(rows),
+        "## Presence per object (paper appendix table shape)\n",
+        table2_markdown(rows),
+        "## Placement against ground truth\n",
+        placement_summary(rows, config.attack.thresholds),
+        "## Defense trade-off (paper Fig. 6, exact instance labels)\n",
+        _markdown_table([t for t in tradeoff if t.get("tier") == "all"],
+                        [k for k in (tradeoff[0] if tradeoff else {}) if k != "tier"]),
+        "## Plots\n",
+        "\n".join(f"![{p.stem}](plots/{p.name})" for p in plots) + "\n",
+        "## Wall time per stage (this run; cached stages take ~0 s)\n",
+        _markdown_table([{"stage": k, "seconds": v} for k, v in timings.items()], ["stage", "seconds"], 1),
+    ]
+    write_text_atomic(paths.report, "\n".join(parts))
+    return paths.report
+
+
+# -------------------------------------------------------------------------------------------- the study
+def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_url: str | None = None,
+              progress: bool = True, workers: int = 1) -> Path:
+    """Run or resume every stage of a study; returns the report's path."""
+    import time
+
+    forced = _check_force(force)
+    paths = StudyPaths(Path(out))
+    paths.root.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+
+    def timed(name: str, fn, *args, **kwargs):
+        start = time.perf_counter()
+        value = fn(*args, **kwargs)
+        timings[name] = round(time.perf_counter() - start, 2)
+        return value
+
+    render_key = timed("render", stage_render, config, paths, forced, progress)
+    maps = timed("maps", stage_maps, config, paths, render_key, forced, progress)
+    logs = timed("queries", stage_queries, config, paths, maps, forced, progress, server_url)
+    rows = timed("attack", stage_attack, config, paths, logs, forced)
+    report = timed("report", stage_report, config, paths, rows, logs, timings)
+    write_text_atomic(paths.root / "timings.json", json.dumps(timings, indent=1))
+    return report
