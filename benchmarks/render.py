@@ -65,9 +65,7 @@ def main() -> None:
         t0 = time.perf_counter()
         write_study_stages(study, stages, progress=False)
         print(f"stages for ci-tiny: {time.perf_counter() - t0:.1f} s")
-        config = dataclasses.replace(
-            study.render, width=640, height=480, spp=args.spp, integrator=args.integrator
-        )
+        config = dataclasses.replace(study.render, width=640, height=480, spp=args.spp, integrator=args.integrator)
         bench_room(next(stages.glob("room_*.usda")), config, args.frames)
         tiny = dataclasses.replace(
             study,

@@ -194,6 +194,26 @@ def test_bad_query_images_raise(study_localizer):
         study_localizer.localize(np.zeros((10, 10, 3), np.uint8))  # size differs from the map camera
 
 
+def test_bad_sequence_and_map_folders_are_named(tmp_path, box_scene):
+    from synthleak.localize.sequence import SequenceError
+    from synthleak.localize.store import MapError
+
+    with pytest.raises(SequenceError, match="no such sequence folder"):
+        build_map(tmp_path / "nowhere", "sift", tmp_path / "map", progress=False)
+    with pytest.raises(MapError, match="map.json: missing"):
+        Localizer.load(tmp_path / "empty")
+
+
+def test_pairs_from_poses_picks_near_cameras_looking_the_same_way():
+    from synthleak.localize.pairs import pairs_from_poses
+
+    poses = [look_at([x, 0, 1], [x, 5, 1]) for x in (0.0, 0.2, 0.4, 3.0)]
+    poses.append(look_at([0.1, 0, 1], [0.1, -5, 1]))  # near camera 0 but looking the other way
+    pairs = pairs_from_poses(poses, pairs_per_image=1)
+    assert (0, 1) in pairs and (1, 2) in pairs and (2, 3) in pairs
+    assert not any(4 in p for p in pairs)
+
+
 # ---------------------------------------------------------------- defense
 
 
@@ -410,7 +430,7 @@ def test_unknown_tier_is_named():
 def test_kornia_sift_tier(small_box_scene, tmp_path):
     pytest.importorskip("torch", reason="torch not installed: pip install torch==2.13.0 kornia")
     pytest.importorskip("kornia", reason="kornia not installed: pip install torch==2.13.0 kornia")
-    results = run_tier(small_box_scene, "kornia-sift", tmp_path / "ksift", max_keypoints=512)
+    results = run_tier(small_box_scene, "kornia-sift", tmp_path / "ksift", max_keypoints=256)
     assert any(r.success for r, _ in results)
     for result, gt in results:
         if result.success:
@@ -445,7 +465,7 @@ def test_disk_lightglue_runs_end_to_end_with_local_weights(small_box_scene, tmp_
     lightglue = LightGlue(features=None, input_dim=128, weights=None)
     torch.save(lightglue.state_dict(), weights / "disk_lightglue.pth")
     monkeypatch.setenv("SYNTHLEAK_WEIGHTS_DIR", str(weights))
-    results = run_tier(small_box_scene, "disk-lightglue", tmp_path / "disk", max_keypoints=256,
+    results = run_tier(small_box_scene, "disk-lightglue", tmp_path / "disk", max_keypoints=64,
                        pairs_per_image=1)
     assert len(results) == 2
     assert all(r.timings["features"] > 0 and (r.success or r.cam_from_world is None) for r, _ in results)

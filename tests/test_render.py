@@ -208,18 +208,11 @@ def test_bop_object_poses_project_into_the_instance_mask(rendered_room, room):
             if iid not in canon:
                 continue
             pts, _ = trimesh.sample.sample_surface(canon[iid], 600, seed=iid)
-            cam_pts = (
-                pts @ np.array(entry["cam_R_m2c"]).reshape(3, 3).T + np.array(entry["cam_t_m2c"]) / 1000.0
-            )
+            cam_pts = pts @ np.array(entry["cam_R_m2c"]).reshape(3, 3).T + np.array(entry["cam_t_m2c"]) / 1000.0
             front = cam_pts[:, 2] > 0.05
             proj = cam_pts[front] @ K.T
             uv = np.floor(proj[:, :2] / proj[:, 2:3]).astype(int)
-            inside = (
-                (uv[:, 0] >= 0)
-                & (uv[:, 0] < seq.camera.width)
-                & (uv[:, 1] >= 0)
-                & (uv[:, 1] < seq.camera.height)
-            )
+            inside = (uv[:, 0] >= 0) & (uv[:, 0] < seq.camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < seq.camera.height)
             uv, z = uv[inside], cam_pts[front][inside, 2]
             visible = np.abs(depth[uv[:, 1], uv[:, 0]] - z) < 0.02  # the surface point is what the pixel sees
             visible_total += int(visible.sum())
@@ -253,7 +246,7 @@ def test_attacker_sequence_is_stored_in_the_object_frame(tmp_path):
     out = render_scene_sequence(scene, tmp_path / "a01", tiny_config(), "attacker", progress=False)
     seq = load_sequence(out)
     assert seq.kind == "attacker" and seq.frame == "object" and seq.target_instance_id == 1
-    assert np.allclose(seq.objects_by_id[1].world_from_object, np.eye(4))
+    assert np.allclose(seq.objects_by_id()[1].world_from_object, np.eye(4))
     world_poses = plan_poses(scene, tiny_config(), "attacker", "a01")
     world_from_object = scene.instances[1].world_from_object
     for i, name in enumerate(seq.frames):
@@ -302,13 +295,9 @@ def test_mitsuba_texture_orientation():
     renderer = MitsubaRenderer(spp=4)
     lamp = Light("lamp", "sphere", make_pose(np.eye(3), (0, 0.5, 1.0)), 6.0)
     renderer.prepare(RenderScene([RenderMesh("wall", 1, verts, faces, uv, tex)], [lamp], {}))
-    rgb = renderer.render(Camera.from_hfov(64, 48, 40.0), look_at((0, 0.5, 1.0), (0, 2, 1.0)), 1).rgb.astype(
-        int
-    )
+    rgb = renderer.render(Camera.from_hfov(64, 48, 40.0), look_at((0, 0.5, 1.0), (0, 2, 1.0)), 1).rgb.astype(int)
     top_left, top_right, bottom = rgb[8, 16], rgb[8, 48], rgb[40, 32]
-    assert (
-        top_left[0] > 150 > top_left[1] and top_right[1] > 150 > top_right[0] and bottom[2] > 150 > bottom[0]
-    )
+    assert top_left[0] > 150 > top_left[1] and top_right[1] > 150 > top_right[0] and bottom[2] > 150 > bottom[0]
 
 
 def test_raycast_depth_is_z_depth():
@@ -469,9 +458,22 @@ def real_dataset(tmp_path_factory):
     from synthleak.render.pipeline import generate
 
     base = load_config("ci-tiny")
-    config = StudyConfig(**{**base.__dict__, "render": RenderConfig(**{
-        **base.render.__dict__, "width": 120, "height": 90, "spp": 1, "scene_frames": 3, "attacker_frames": 2,
-        "query_every": 3})})
+    config = StudyConfig(
+        **{
+            **base.__dict__,
+            "render": RenderConfig(
+                **{
+                    **base.render.__dict__,
+                    "width": 120,
+                    "height": 90,
+                    "spp": 1,
+                    "scene_frames": 3,
+                    "attacker_frames": 2,
+                    "query_every": 3,
+                }
+            ),
+        }
+    )
     out = tmp_path_factory.mktemp("study")
     generate(config, out, progress=False)
     return out, config
@@ -508,7 +510,7 @@ def test_real_stages_ground_truth_and_layout(real_dataset):
     for entry in index["attacker_objects"]:
         att = load_sequence(out / "attackers" / entry["id"])
         assert att.kind == "attacker" and att.target_instance_id == entry["target_instance_id"]
-        target = att.objects_by_id[att.target_instance_id]
+        target = att.objects_by_id()[att.target_instance_id]
         assert np.allclose(target.world_from_object, np.eye(4))
         # the canonical-frame centre of the target is in view, in front, and the target is what is seen
         for name in att.frames:

@@ -195,17 +195,21 @@ def sfm_local_poses(
     pycolmap.extract_features(database, seq.root / "images", image_names=names,
                               camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                               extraction_options=extraction, device=pycolmap.Device.cpu)
+    pycolmap.set_random_seed(int(seed) % (2**31))
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = threads
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = int(seed) % (2**31)
     kind = matcher if matcher != "auto" else ("exhaustive" if len(names) <= 60 else "sequential")
     if kind == "exhaustive":
-        pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
+        pycolmap.match_exhaustive(database, matching_options=matching, verification_options=verification,
+                                  device=pycolmap.Device.cpu)
     elif kind == "sequential":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = 10
         pairing.quadratic_overlap = True
         pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing,
-                                  device=pycolmap.Device.cpu)
+                                  verification_options=verification, device=pycolmap.Device.cpu)
     else:
         raise ValueError(f"matcher: expected exhaustive | sequential | auto, got {matcher!r}")
 

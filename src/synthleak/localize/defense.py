@@ -9,6 +9,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 
+from synthleak.config import DefenseConfig
+
 
 def contributing_instances(counts: Mapping[int, int], min_fraction: float) -> list[int]:
     """Instance ids with at least ``min_fraction`` of the top instance's inliers (background 0 excluded)."""
@@ -53,6 +55,11 @@ class DefensePolicy:
             raise ValueError(f"DefensePolicy.min_fraction must be in [0, 1], got {self.min_fraction}")
         if self.min_instances < 0:
             raise ValueError(f"DefensePolicy.min_instances must be >= 0, got {self.min_instances}")
+
+    @classmethod
+    def from_config(cls, config: DefenseConfig) -> DefensePolicy:
+        """The policy of a study's ``[defense]`` table."""
+        return cls(config.min_fraction, config.min_instances, config.enabled)
 
     def apply(self, counts: Mapping[int, int]) -> DefenseDecision:
         contributing = contributing_instances(counts, self.min_fraction)

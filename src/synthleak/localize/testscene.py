@@ -212,11 +212,24 @@ def write_sequence(
     query = [n for i, n in enumerate(names) if query_every and i % query_every == query_every // 2]
     split = {"map": [n for n in names if n not in query], "query": query}
     (out_dir / "split.json").write_text(json.dumps(split, indent=1))
-    ids = sorted({q.instance_id for q in quads})
-    objects = {"instances": [{"instance_id": i, "name": f"inst_{i}"} for i in ids], "frame": "world",
-               "target_instance_id": None}
+    objects = {"instances": [_instance_json(i, [q for q in quads if q.instance_id == i])
+                             for i in sorted({q.instance_id for q in quads})],
+               "frame": "world", "target_instance_id": None}
     (out_dir / "objects.json").write_text(json.dumps(objects, indent=1))
     return out_dir
+
+
+def _instance_json(instance_id: int, quads: list[Quad]) -> dict:
+    """An objects.json entry (docs/DATASET.md) for a box or a room shell piece."""
+    corners = np.array([c for q in quads for c in (q.origin, q.origin + q.size_u * q.u + q.size_v * q.v)])
+    lo, hi = corners.min(0), corners.max(0)
+    pose = np.eye(4)
+    pose[:3, 3] = (lo + hi) / 2
+    shell = instance_id < 100
+    return {"instance_id": instance_id, "name": f"{'shell' if shell else 'box'}_{instance_id}",
+            "model_id": "shell" if shell else "textured_box", "category": "shell" if shell else "box",
+            "symmetry": "none", "role": "shell" if shell else "scene", "world_from_object": pose.tolist(),
+            "extents": (hi - lo).tolist(), "variant_params": {}}
 
 
 def render_image(

@@ -146,9 +146,7 @@ def write_frame(seq_dir: Path, frame: str | int, data: Frame) -> None:
     """Write depth, instance, then RGB of one frame, each atomically."""
     h, w = data.depth.shape
     if data.rgb.shape != (h, w, 3) or data.rgb.dtype != np.uint8:
-        raise ValueError(
-            f"frame {frame}: rgb must be uint8 ({h}, {w}, 3), got {data.rgb.dtype} {data.rgb.shape}"
-        )
+        raise ValueError(f"frame {frame}: rgb must be uint8 ({h}, {w}, 3), got {data.rgb.dtype} {data.rgb.shape}")
     if data.instance.shape != (h, w):
         raise ValueError(f"frame {frame}: instance shape {data.instance.shape} != depth shape {(h, w)}")
     paths = frame_paths(seq_dir, frame)
@@ -201,9 +199,7 @@ def _colmap_images(names: list[str], poses: list[np.ndarray]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def check_existing_plan(
-    seq_dir: Path, camera: Camera, frames: list[str], cam_from_world: list[np.ndarray]
-) -> None:
+def check_existing_plan(seq_dir: Path, camera: Camera, frames: list[str], cam_from_world: list[np.ndarray]) -> None:
     """Refuse to resume into a folder whose COLMAP files describe other cameras or poses (another config)."""
     seq_dir = Path(seq_dir)
     for path, text in (
@@ -236,10 +232,7 @@ def write_sequence_metadata(
     seq_dir = Path(seq_dir)
     if frame not in ("world", "object"):
         raise ValueError(f"frame must be 'world' or 'object', got {frame!r}")
-    poses = [
-        check_pose(p, f"{seq_dir.name}/{n}: cam_from_world")
-        for n, p in zip(frames, cam_from_world, strict=True)
-    ]
+    poses = [check_pose(p, f"{seq_dir.name}/{n}: cam_from_world") for n, p in zip(frames, cam_from_world, strict=True)]
     atomic_write_text(seq_dir / "colmap" / "cameras.txt", _colmap_cameras(camera))
     atomic_write_text(seq_dir / "colmap" / "images.txt", _colmap_images(frames, poses))
     atomic_write_text(
@@ -358,7 +351,6 @@ class Sequence:
             raise DatasetError(f"{path}: missing instance image or not 16-bit")
         return image
 
-    @property
     def objects_by_id(self) -> dict[int, InstanceInfo]:
         return {o.instance_id: o for o in self.objects}
 

@@ -90,9 +90,7 @@ def _mesh(mi: Any, mesh: RenderMesh, index: int) -> Any:
     props = mi.Properties()
     props["bsdf"] = _bsdf(mi, mesh)
     if mesh.emissive is not None and max(mesh.emissive) > 0:
-        props["emitter"] = mi.load_dict(
-            {"type": "area", "radiance": {"type": "rgb", "value": list(mesh.emissive)}}
-        )
+        props["emitter"] = mi.load_dict({"type": "area", "radiance": {"type": "rgb", "value": list(mesh.emissive)}})
     m = mi.Mesh(
         f"m{index}_{mesh.instance_id}",
         len(verts),
@@ -288,10 +286,7 @@ class MitsubaRenderer:
         points = origin + dirs[sel] * (z[sel] - 1e-3)[:, None]  # 1 mm in front of the surface
         dark = set()
         for k, direction in enumerate(self._fill_directions):
-            if (
-                direction is not None
-                and self._gt.any_hit(points, np.broadcast_to(direction, points.shape)).all()
-            ):
+            if direction is not None and self._gt.any_hit(points, np.broadcast_to(direction, points.shape)).all():
                 dark.add(k)
         return dark
 

@@ -73,9 +73,7 @@ def load_stage(scene_path: Path) -> RenderScene:
     try:
         from synthleak.scene.usd_io import read_render_scene
     except ImportError as exc:
-        raise StageError(
-            f"{scene_path}: cannot read stages, synthleak.scene.usd_io unavailable ({exc})"
-        ) from exc
+        raise StageError(f"{scene_path}: cannot read stages, synthleak.scene.usd_io unavailable ({exc})") from exc
     try:
         return read_render_scene(scene_path)
     except Exception as exc:  # noqa: BLE001 - any reader failure becomes a clear, file-named error
@@ -185,10 +183,7 @@ def render_stages(config: StudyConfig, stages_dir: Path, out_dir: Path, progress
     stages_dir, out_dir = Path(stages_dir), Path(out_dir)
     index = _read_index(stages_dir)
     jobs = [(stages_dir / r["stage"], out_dir / "scenes" / r["name"], "scene") for r in index["rooms"]]
-    jobs += [
-        (stages_dir / a["stage"], out_dir / "attackers" / a["id"], "attacker")
-        for a in index["attacker_objects"]
-    ]
+    jobs += [(stages_dir / a["stage"], out_dir / "attackers" / a["id"], "attacker") for a in index["attacker_objects"]]
     missing = [str(stage) for stage, _, _ in jobs if not stage.is_file()]
     if missing:
         raise StageError(f"{stages_dir / 'index.json'}: stage files do not exist: {', '.join(missing)}")

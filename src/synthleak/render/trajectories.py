@@ -24,9 +24,7 @@ def room_bounds(scene: RenderScene) -> np.ndarray:
     if not shell:
         if not scene.meshes:
             raise ValueError(f"{scene.source or 'scene'}: no meshes to bound the room")
-        verts = np.concatenate(
-            [np.asarray(m.vertices, dtype=np.float64).reshape(-1, 3) for m in scene.meshes]
-        )
+        verts = np.concatenate([np.asarray(m.vertices, dtype=np.float64).reshape(-1, 3) for m in scene.meshes])
         return np.stack([verts.min(axis=0), verts.max(axis=0)])
     verts = {id(m): np.asarray(m.vertices, dtype=np.float64).reshape(-1, 3) for m in shell}
     names = {m.instance_id: scene.instances[m.instance_id].name.lower() for m in shell}
@@ -121,9 +119,7 @@ def walkthrough(
     wobble = 1.0 + 0.08 * np.sin(3.0 * angles + rng.uniform(0, 2 * np.pi))
     xy, loop_centre = _free_loop(centre[:2], semi, angles, wobble, _footprints(scene), object_clearance)
     eye_base = rng.uniform(1.45, 1.65)
-    height = (
-        eye_base + 0.08 * np.sin(2.0 * angles + rng.uniform(0, 2 * np.pi)) + rng.normal(0, 0.01, n_frames)
-    )
+    height = eye_base + 0.08 * np.sin(2.0 * angles + rng.uniform(0, 2 * np.pi)) + rng.normal(0, 0.01, n_frames)
     height = np.clip(height, *EYE_HEIGHT)
     height = np.minimum(floor + height, ceiling - 0.3)
     yaw_offset = np.radians(20.0) * np.sin(angles * 2.0 + rng.uniform(0, 2 * np.pi))
@@ -145,9 +141,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / n if n > 1e-9 else np.zeros_like(v)
 
 
-def _view_yaw(
-    eye: np.ndarray, loop_centre: np.ndarray, room_centre: np.ndarray, objects: np.ndarray
-) -> float:
+def _view_yaw(eye: np.ndarray, loop_centre: np.ndarray, room_centre: np.ndarray, objects: np.ndarray) -> float:
     """Yaw looking across the room (between the loop's and the room's centre), pulled smoothly towards
     the furniture within about 40 degrees of it so that objects stay in view."""
     base = _unit(loop_centre - eye) + _unit(room_centre - eye)
@@ -217,9 +211,7 @@ def orbit(
     mid, amp = 0.5 * (el_lo + el_hi), 0.5 * (el_hi - el_lo)
     el = np.radians(
         np.clip(
-            mid
-            + amp * np.sin(2.0 * np.pi * 2.0 * t + rng.uniform(0, 2 * np.pi))
-            + rng.normal(0.0, 3.0, n_frames),
+            mid + amp * np.sin(2.0 * np.pi * 2.0 * t + rng.uniform(0, 2 * np.pi)) + rng.normal(0.0, 3.0, n_frames),
             el_lo,
             el_hi,
         )
