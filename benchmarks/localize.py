@@ -89,10 +89,10 @@ def main() -> None:
             except (ImportError, FileNotFoundError, RuntimeError) as exc:
                 table.add_row(tier, "skipped", str(exc).split(";")[0][:60], "", "", "", "", "")
                 continue
-            table.add_row(tier, f"{r['qps']:.2f}", f"{r['features']:.3f}", f"{r['matching']:.3f}",
-                          f"{r['pnp']:.3f}", r["localized"], f"{r['median_cm']:.2f}",
-                          f"{r['map_per_100']:.1f}")
-            console.print(f"{tier}: done")
+            row = (tier, f"{r['qps']:.2f}", f"{r['features']:.3f}", f"{r['matching']:.3f}", f"{r['pnp']:.3f}",
+                   r["localized"], f"{r['median_cm']:.2f}", f"{r['map_per_100']:.1f}")
+            table.add_row(*row)
+            console.print(" | ".join(row))  # partial results survive an interrupted run
         console.print(table)
 
 

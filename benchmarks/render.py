@@ -1,7 +1,7 @@
 """Render throughput: frames per second at 640x480 on one real room stage (study-like preset), and the
 time per stage of a tiny ``generate`` run. Prints figures; asserts nothing.
 
-    python benchmarks/render.py [--frames 6] [--spp 2] [--integrator direct]
+    python benchmarks/render.py [--frames 6] [--spp 4] [--integrator direct]
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def bench_room(stage: Path, config: RenderConfig, frames: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=6)
-    parser.add_argument("--spp", type=int, default=2)
+    parser.add_argument("--spp", type=int, default=4)
     parser.add_argument("--integrator", default="direct")
     args = parser.parse_args()
     study = load_config("ci-tiny")

@@ -312,16 +312,16 @@ def test_blender_unavailable_message() -> None:
         create_blender_renderer(CONFIG)
 
 
-def test_registry_factories() -> None:
-    """The factories plug into render.registry (as the lead wires them) and honour config.renderer."""
+def test_registry_factories(monkeypatch) -> None:
+    """``config.renderer`` reaches these backends through render.registry (wired lazily by name there)."""
     registry = pytest.importorskip("synthleak.render.registry")
     from synthleak.render import blender_backend, pyrender_backend
 
+    monkeypatch.setattr(registry, "_FACTORIES", dict(registry._FACTORIES))  # restored after the test
     pairs = [("pyrender", "pyrender", pyrender_backend), ("blender", "bpy", blender_backend)]
     for name, module, backend in pairs:
-        factory = getattr(backend, f"create_{name}_renderer")
         if name not in registry.available_renderers():
-            registry.register_renderer(name, factory, backend.INSTALL_HINT)
+            registry.register_renderer(name, getattr(backend, f"create_{name}_renderer"), backend.INSTALL_HINT)
         config = RenderConfig(renderer=name, width=W, height=H)
         if _has(module):
             assert registry.get_renderer(config).name == name
@@ -377,3 +377,21 @@ def test_real_usd_stage_matches_raycast(name: str, usd_room: RenderScene) -> Non
         assert np.count_nonzero(frame.instance != ref_inst) <= 0.002 * frame.instance.size
         assert_masks_agree(frame.instance, ref_inst, f"{name} USD view {i}")
         assert_depths_agree(frame.depth, ref_depth, frame.instance, ref_inst, f"{name} USD view {i}")
+
+
+def test_pyrender_renderers_coexist() -> None:
+    """Dropping one renderer must not break another (pyrender's EGL teardown terminates the display)."""
+    if not _has("pyrender"):
+        pytest.skip(BACKENDS["pyrender"][2])
+    import gc
+
+    cam, pose = cameras()[0]
+    first, second = _make_pyrender(), _make_pyrender()
+    first.prepare(tiny_stage())
+    second.prepare(tiny_stage())
+    expected = first.render(cam, pose, seed=0)
+    del first
+    gc.collect()
+    again = second.render(cam, pose, seed=0)
+    assert again.rgb.tobytes() == expected.rgb.tobytes()
+    assert np.array_equal(again.instance, expected.instance)

@@ -180,7 +180,7 @@ def test_localization_is_deterministic_and_bow_retrieval_works(study_scene, stud
 
 def test_other_environment_is_not_localized(study_localizer, box_localizer):
     other = ts.make_room(seed=11)
-    for pose in ts.walkthrough_poses(4):
+    for pose in ts.walkthrough_poses(4)[::2]:
         rgb, _ = ts.render_image(other, CAMERA, pose)
         for loc in (study_localizer, box_localizer):
             result = loc.localize(rgb)

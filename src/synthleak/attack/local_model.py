@@ -147,7 +147,7 @@ def sfm_local_poses(
     matcher: str = "auto",
     max_features: int = 4096,
     peak_threshold: float = 0.004,
-    num_threads: int = 0,
+    num_threads: int = 1,
     seed: int = 0,
     min_num_matches: int = 15,
     init_min_num_inliers: int = 30,
@@ -157,8 +157,9 @@ def sfm_local_poses(
     of an attacker sequence, scaled to metres with ``object_extents`` (the attacker's knowledge of the size).
 
     ``matcher``: ``exhaustive``, ``sequential`` (orbit order, overlap 10) or ``auto`` (exhaustive up to 60
-    images). ``num_threads`` 0 = all cores for extraction/matching; the mapper runs single-threaded with a
-    fixed seed for reproducibility. ``min_num_matches`` / ``init_min_num_inliers`` /
+    images). ``num_threads`` for extraction/matching (0 = all cores): the default 1 with the fixed ``seed``
+    (COLMAP PRNG, two-view RANSAC, single-threaded mapper) gives bit-identical results; more threads are
+    faster but differ in the last digits. ``min_num_matches`` / ``init_min_num_inliers`` /
     ``abs_pose_min_num_inliers`` relax COLMAP's defaults (15 / 100 / 30), and ``peak_threshold`` (SIFT
     contrast, default 0.0067) is lowered, because those are tuned for large photos, not small renders of
     plain furniture. If SfM registers only part of the images, the rest are

@@ -7,6 +7,8 @@ Binary descriptors are clustered as 0/1 bit vectors.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy.cluster.vq import kmeans2
 
@@ -36,7 +38,9 @@ class BowIndex:
         if len(data) > sample:
             data = data[np.sort(rng.choice(len(data), sample, replace=False))]
         k = int(min(num_words, max(2, len(data) // 4)))
-        words, _ = kmeans2(data.astype(np.float64), k, iter=10, minit="points", seed=rng)
+        with warnings.catch_warnings():  # an empty cluster is just an unused word
+            warnings.filterwarnings("ignore", message="One of the clusters is empty")
+            words, _ = kmeans2(data.astype(np.float64), k, iter=10, minit="points", seed=rng)
         words = words.astype(np.float32)
         raw = np.stack([cls._counts(words, f) for f in features])
         df = (raw > 0).sum(0)

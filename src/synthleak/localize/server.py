@@ -37,6 +37,8 @@ def _check_size(data: bytes) -> tuple[int, int]:
     try:
         with Image.open(io.BytesIO(data)) as im:
             width, height = im.size
+    except Image.DecompressionBombError as exc:
+        raise HTTPException(413, f"image has too many pixels ({exc})") from exc
     except (OSError, ValueError) as exc:
         raise HTTPException(400, "request body is not a decodable image (PNG, JPEG, ...)") from exc
     if min(width, height) < MIN_IMAGE_SIDE:

@@ -292,7 +292,7 @@ def to_object_frame(
 
 
 def make_split(frames: list[str], query_every: int) -> dict[str, list[str]]:
-    """Every ``query_every``-th frame (indices k*n + n-1... starting at n-1) is a query; the rest map."""
+    """Every ``query_every``-th frame (indices n-1, 2n-1, ...) is a held-out query; the rest build the map."""
     if query_every < 2:
         raise ValueError(f"render.query_every must be >= 2, got {query_every}")
     query = [f for i, f in enumerate(frames) if i % query_every == query_every - 1]

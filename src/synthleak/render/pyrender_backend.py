@@ -45,6 +45,12 @@ _RECT_CONE = np.radians(80.0)
 """Outer cone half-angle of the spot light standing in for a rect (hemispherical) light."""
 
 
+_GL: list[Any] = []
+"""One ``OffscreenRenderer`` (one EGL context) per process, shared by every PyrenderRenderer: pyrender's
+EGL teardown calls ``eglTerminate`` on the process-wide display, so deleting one renderer's context while
+another is alive breaks the other (EGL_BAD_DISPLAY)."""
+
+
 class PyrenderUnavailable(ImportError):
     """pyrender or a headless OpenGL platform is missing; the message says how to install it."""
 
@@ -163,8 +169,6 @@ class PyrenderRenderer:
         self._scene: Any = None
         self._seg_map: dict[Any, np.ndarray] = {}
         self._cam_node: Any = None
-        self._renderer: Any = None
-        self._size: tuple[int, int] | None = None
         self._check_context()
 
     def _check_context(self) -> None:
@@ -178,13 +182,12 @@ class PyrenderRenderer:
             ) from exc
 
     def _viewport(self, width: int, height: int) -> Any:
-        if self._renderer is None:
-            self._renderer = self._pr.OffscreenRenderer(width, height)
-        elif self._size != (width, height):
-            self._renderer.viewport_width = width
-            self._renderer.viewport_height = height
-        self._size = (width, height)
-        return self._renderer
+        if not _GL:
+            _GL.append(self._pr.OffscreenRenderer(width, height))
+        renderer = _GL[0]
+        if (renderer.viewport_width, renderer.viewport_height) != (width, height):
+            renderer.viewport_width, renderer.viewport_height = width, height
+        return renderer
 
     def prepare(self, scene: RenderScene) -> None:
         """Build the pyrender scene once: one node per mesh, its id colour, the lights."""
@@ -248,10 +251,8 @@ class PyrenderRenderer:
         return Frame(rgb=self.render_rgb(camera, cam_from_world), depth=depth, instance=instance)
 
     def close(self) -> None:
-        """Release the GL context (also released at interpreter exit)."""
-        if self._renderer is not None:
-            self._renderer.delete()
-            self._renderer = None
+        """Drop this renderer's scene (the shared GL context stays for the next renderer)."""
+        self._scene, self._seg_map, self._cam_node = None, {}, None
 
 
 def create_pyrender_renderer(config: RenderConfig) -> PyrenderRenderer:
