@@ -65,7 +65,7 @@ def main() -> None:
     parser.add_argument("--max-keypoints", type=int, default=4096)
     parser.add_argument("--weights-dir", type=Path, help="DISK/LightGlue weights (disk-lightglue tier)")
     args = parser.parse_args()
-    console = Console()
+    console = Console(width=150)
     config = LocalizeConfig(retrieval=args.retrieval, max_keypoints=args.max_keypoints)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -87,7 +87,8 @@ def main() -> None:
             try:
                 r = bench_tier(scene, tier, work, config, args.weights_dir)
             except (ImportError, FileNotFoundError, RuntimeError) as exc:
-                table.add_row(tier, "skipped", str(exc).split(";")[0][:60], "", "", "", "", "")
+                console.print(f"{tier}: skipped: {exc}")
+                table.add_row(tier, "skipped", "", "", "", "", "", "")
                 continue
             row = (tier, f"{r['qps']:.2f}", f"{r['features']:.3f}", f"{r['matching']:.3f}", f"{r['pnp']:.3f}",
                    r["localized"], f"{r['median_cm']:.2f}", f"{r['map_per_100']:.1f}")

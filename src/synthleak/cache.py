@@ -21,15 +21,17 @@ def cache_key(*parts: Any) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def done_key(folder: Path) -> str | None:
+    """The key ``folder`` was completed with, or None (never completed, or an unreadable marker)."""
+    try:
+        return json.loads((folder / MARKER).read_text()).get("key")
+    except (OSError, json.JSONDecodeError, AttributeError):
+        return None
+
+
 def is_done(folder: Path, key: str) -> bool:
     """True if ``folder`` was completed with the same key."""
-    marker = folder / MARKER
-    if not marker.is_file():
-        return False
-    try:
-        return json.loads(marker.read_text()).get("key") == key
-    except (OSError, json.JSONDecodeError):
-        return False
+    return done_key(folder) == key
 
 
 def mark_done(folder: Path, key: str, **info: Any) -> None:

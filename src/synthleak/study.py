@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from synthleak.cache import cache_key, is_done, mark_done, write_text_atomic
+from synthleak.cache import cache_key, done_key, is_done, mark_done, write_text_atomic
 from synthleak.config import StudyConfig, config_to_dict
 from synthleak.progress import progress_bar
 
@@ -81,6 +81,9 @@ def stage_render(config: StudyConfig, paths: StudyPaths, force: set[str], progre
     key = cache_key("render", config.seed, _section(config, "scenes"), _section(config, "render"))
     if "render" not in force and is_done(paths.dataset, key):
         return key
+    old_key = done_key(paths.dataset)
+    if old_key is not None and old_key != key:  # rendered with another config: keep it aside, never delete
+        paths.dataset.rename(paths.root / f"dataset.{old_key[:12]}")
     generate(config, paths.dataset, progress=progress)
     mark_done(paths.dataset, key)
     return key
@@ -140,7 +143,7 @@ def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, 
     logs: dict[tuple[str, str], Path] = {}
     for (tier, room), map_dir in maps.items():
         out = paths.queries / tier / room
-        key = cache_key("queries", json.loads((map_dir / ".done.json").read_text())["key"],
+        key = cache_key("queries", done_key(map_dir),
                         config.attack.queries_per_object, server_url)
         logs[(tier, room)] = out / "queries.jsonl"
         if "queries" not in force and is_done(out, key):
@@ -234,7 +237,7 @@ def stage_attack(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, s
     """Attack every (room, object) pair and write ``results/results.{csv,json}``."""
     from synthleak.evaluate.tables import read_results, write_results
 
-    query_keys = [json.loads((log.parent / ".done.json").read_text())["key"] for _, log in sorted(logs.items())]
+    query_keys = [done_key(log.parent) for _, log in sorted(logs.items())]
     key = cache_key("attack", query_keys, _section(config, "attack"))
     if "attack" not in force and is_done(paths.results, key):
         return read_results(paths.results / "results.json")
@@ -297,8 +300,7 @@ def _room_plots(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any
         scene = load_sequence(paths.dataset / "scenes" / room["name"])
         objects = [(f"{o.model_id}#{o.instance_id}", o.world_from_object, o.extents)
                    for o in scene.objects if o.role == "object"]
-        shell = np.array([o.world_from_object[:3, 3] for o in scene.objects if o.role == "shell"]).reshape(-1, 3)
-        lo, hi = (shell.min(axis=0), shell.max(axis=0)) if len(shell) else (np.zeros(3), np.ones(3) * 4)
+        size = np.asarray(room["size"][:2], dtype=float)  # the room interior is centred on the origin
         chosen = [r for r in rows if r["room"] == room["name"] and r["tier"] == tier and r["aligner"] == aligner
                   and r["delta_r_deg"] == delta_r and r["delta_t_m"] == delta_t and r["decision"]
                   and r["scene_from_object_est"] is not None]
@@ -309,8 +311,8 @@ def _room_plots(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any
             estimates.append((gt_name, np.array(r["scene_from_object_est"]), extents))
         cams = np.array([scene.pose(f) for f in scene.frames])
         out.append(plot_room_topdown(
-            (hi - lo)[:2], objects, estimates, cameras=cams, out=paths.plots / f"room_{room['name']}.png",
-            room_min=lo[:2], title=f"{room['name']}: GT (solid) vs decided-present estimates (dashed), "
+            size, objects, estimates, cameras=cams, out=paths.plots / f"{room['name']}_topdown.png",
+            room_min=-size / 2, title=f"{room['name']}: GT (solid) vs decided-present estimates (dashed), "
             f"{tier}/{aligner} {delta_r:g}°/{delta_t:g} m"))
     return out
 
@@ -323,7 +325,6 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
     from synthleak.evaluate.tables import (
         placement_summary,
         presence_pr_per_room,
-        random_guess_precision,
         table1_markdown,
         table2_markdown,
     )
@@ -351,7 +352,6 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         "## Genuine queries (held-out walk-through frames)\n",
         _markdown_table(genuine, ["tier", "room", "n", "localized", "median_rot_err_deg", "median_trans_err_m"]),
         "## Presence (paper Table 1 shape)\n",
-        f"Random-guess precision baseline: {random_guess_precision(rows):.3f}\n",
         table1_markdown(rows),
         "## Presence per object (paper appendix table shape)\n",
         table2_markdown(rows),

@@ -42,8 +42,19 @@ from synthleak.assets.mesh import ObjectMesh, TexturedPart
 
 IMPORTED_BUILDER = "imported"
 IMPORTED_DIR = "imported"
-_TOP = {"id", "category", "builder", "symmetry", "support", "size", "scale_range", "colour_range", "description",
-        "imported", "textures"}
+_TOP = {
+    "id",
+    "category",
+    "builder",
+    "symmetry",
+    "support",
+    "size",
+    "scale_range",
+    "colour_range",
+    "description",
+    "imported",
+    "textures",
+}
 _PART = {"mesh", "file", "roughness", "metallic", "recolour", "source_name"}
 
 

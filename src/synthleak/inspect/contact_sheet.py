@@ -23,6 +23,8 @@ from synthleak.render.dataset import DatasetError, Sequence, atomic_write_bytes,
 BAR_W = 44
 """Width in pixels of the depth scale bar appended to the depth panel."""
 NEAR = 1e-3
+CLIP_NEAR = 0.05
+"""Box edges are clipped to the part at least this far (metres) in front of the camera."""
 _EDGES = ((0, 1), (1, 3), (3, 2), (2, 0), (4, 5), (5, 7), (7, 6), (6, 4), (0, 4), (1, 5), (2, 6), (3, 7))
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 
@@ -97,11 +99,8 @@ def box_corners(extents: np.ndarray) -> np.ndarray:
     return np.stack([(bits[:, 0] - 0.5) * ex, (bits[:, 1] - 0.5) * ey, bits[:, 2] * ez], axis=1)
 
 
-def projected_boxes(seq: Sequence | Path, frame: str | int, include_shell: bool = False) -> dict[int, np.ndarray]:
-    """``{obj_id: (8, 2) pixel coordinates}`` of each object's canonical 3D box in ``frame`` from the BOP
-    ground truth; boxes with a corner behind the camera are left out. Pixel (u, v) has its centre at
-    (u + 0.5, v + 0.5), so a box edge at x = 10.0 runs between pixel columns 9 and 10."""
-    seq = seq if isinstance(seq, Sequence) else load_sequence(Path(seq))
+def camera_boxes(seq: Sequence, frame: str | int, include_shell: bool = False) -> tuple[np.ndarray, dict]:
+    """(K, ``{obj_id: (8, 3) box corners in the camera frame, metres}``) of ``frame`` from the BOP files."""
     scene_gt, scene_camera = _bop(seq)
     key = str(int(str(frame).removesuffix(".png"))) if not isinstance(frame, int) else str(frame)
     if key not in scene_gt or key not in scene_camera:
@@ -117,12 +116,38 @@ def projected_boxes(seq: Sequence | Path, frame: str | int, include_shell: bool 
             np.asarray(entry["cam_R_m2c"], dtype=np.float64).reshape(3, 3),
             np.asarray(entry["cam_t_m2c"], dtype=np.float64) / 1000.0,
         )
-        pts = transform_points(pose, box_corners(obj.extents))
-        if np.any(pts[:, 2] <= NEAR):
+        boxes[int(entry["obj_id"])] = transform_points(pose, box_corners(obj.extents))
+    return k, boxes
+
+
+def projected_boxes(seq: Sequence | Path, frame: str | int, include_shell: bool = False) -> dict[int, np.ndarray]:
+    """``{obj_id: (8, 2) pixel coordinates}`` of each object's canonical 3D box in ``frame`` from the BOP
+    ground truth; boxes with a corner behind the camera are left out. Pixel (u, v) has its centre at
+    (u + 0.5, v + 0.5), so a box edge at x = 10.0 runs between pixel columns 9 and 10."""
+    seq = seq if isinstance(seq, Sequence) else load_sequence(Path(seq))
+    k, boxes = camera_boxes(seq, frame, include_shell)
+    out = {}
+    for obj_id, pts in boxes.items():
+        if np.all(pts[:, 2] > NEAR):
+            uvw = pts @ k.T
+            out[obj_id] = uvw[:, :2] / uvw[:, 2:]
+    return out
+
+
+def box_segments(k: np.ndarray, corners: np.ndarray, near: float = CLIP_NEAR) -> list[np.ndarray]:
+    """The box's 12 edges as (2, 2) pixel segments, each clipped to the part in front of ``near`` metres."""
+    segments = []
+    for a, b in _EDGES:
+        p, q = corners[a].copy(), corners[b].copy()
+        if p[2] < near and q[2] < near:
             continue
-        uvw = pts @ k.T
-        boxes[int(entry["obj_id"])] = uvw[:, :2] / uvw[:, 2:]
-    return boxes
+        if p[2] < near or q[2] < near:
+            t = (near - p[2]) / (q[2] - p[2])
+            cut = p + t * (q - p)
+            p, q = (cut, q) if p[2] < near else (p, cut)
+        uvw = np.stack([p, q]) @ k.T
+        segments.append(uvw[:, :2] / uvw[:, 2:])
+    return segments
 
 
 def _text(image: np.ndarray, text: str, org: tuple[int, int], colour: tuple[int, int, int]) -> None:
@@ -154,22 +179,26 @@ def scale_bar(height: int, lo: float, hi: float) -> np.ndarray:
     return bar
 
 
-def box_overlay(rgb: np.ndarray, boxes: dict[int, np.ndarray]) -> np.ndarray:
-    """``rgb`` with each box's 12 edges and its id in the id's palette colour."""
+def box_overlay(rgb: np.ndarray, k: np.ndarray, boxes: dict[int, np.ndarray]) -> np.ndarray:
+    """``rgb`` with each box (camera-frame corners) drawn as its 12 edges and its id, in the id's colour."""
     out = np.ascontiguousarray(rgb.copy())
     shift = 4  # sub-pixel precision of cv2 drawing: coordinates * 16
+    h, w = out.shape[:2]
     for obj_id in sorted(boxes):
         colour = id_colour(obj_id)
-        pts = np.round((boxes[obj_id] - 0.5) * (1 << shift)).astype(np.int64)  # pixel centres -> indices
-        for a, b in _EDGES:
-            cv2.line(out, tuple(int(c) for c in pts[a]), tuple(int(c) for c in pts[b]), colour, 1, cv2.LINE_8, shift)
-        top = boxes[obj_id][np.argmin(boxes[obj_id][:, 1])]
-        _text(
-            out,
-            str(obj_id),
-            (int(np.clip(top[0], 0, out.shape[1] - 20)), int(np.clip(top[1] - 2, 8, out.shape[0] - 2))),
-            colour,
-        )
+        segments = box_segments(k, boxes[obj_id])
+        for seg in segments:
+            pts = np.round((np.clip(seg, -8 * max(h, w), 8 * max(h, w)) - 0.5) * (1 << shift)).astype(np.int64)
+            cv2.line(
+                out, (int(pts[0, 0]), int(pts[0, 1])), (int(pts[1, 0]), int(pts[1, 1])), colour, 1, cv2.LINE_8, shift
+            )
+        if not segments:
+            continue
+        ends = np.concatenate(segments)
+        inside = ends[(ends[:, 0] >= 0) & (ends[:, 0] < w) & (ends[:, 1] >= 0) & (ends[:, 1] < h)]
+        if len(inside):
+            top = inside[np.argmin(inside[:, 1])]
+            _text(out, str(obj_id), (int(np.clip(top[0], 0, w - 20)), int(np.clip(top[1] - 2, 8, h - 2))), colour)
     return out
 
 
@@ -186,7 +215,7 @@ def sheet_rows(seq: Sequence, frames: list[str]) -> list[np.ndarray]:
         _text(labelled, f.removesuffix(".png"), (2, 10), (255, 255, 255))
         rows.append(
             np.concatenate(
-                [labelled, depth_panel, instance_image(seq.instance(f)), box_overlay(rgb, projected_boxes(seq, f))],
+                [labelled, depth_panel, instance_image(seq.instance(f)), box_overlay(rgb, *camera_boxes(seq, f))],
                 axis=1,
             )
         )

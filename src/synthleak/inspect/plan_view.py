@@ -96,7 +96,9 @@ def plan_view(stage_path: Path, out: Path, dataset_sequence: Path | None = None)
     objects = [i for i in sorted(prints) if i not in shell]
     for iid in shell:
         hull, z0, z1 = prints[iid]
-        flat = z1 - z0 < 0.1
+        name = scene.instances[iid].name.lower()
+        span = float(np.ptp(hull, axis=0).min()) if len(hull) else 0.0
+        flat = "floor" in name or "ceiling" in name or (z1 - z0) < 0.2 * span
         if flat and z0 > 0.5 * top:  # ceiling: would hide everything
             continue
         face = (0.93, 0.93, 0.93) if flat else (0.35, 0.35, 0.35)

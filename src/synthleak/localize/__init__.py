@@ -1,4 +1,11 @@
-"""Localization service: feature tiers, GT-pose mapping, PnP localization, the Sec. 6 defense, HTTP."""
+"""Localization service: feature tiers, GT-pose mapping, PnP localization, the Sec. 6 defense, HTTP.
+
+    build_map(scene_dir, "sift", map_dir, LocalizeConfig())          # features, pairs, triangulation
+    loc = Localizer.load(map_dir, config, defense=DefensePolicy(...))  # in process
+    loc.localize(rgb_or_encoded_bytes) -> LocalizationResult
+    synthleak.localize.server.serve(map_dir, port=8000)                # HTTP (FastAPI + uvicorn)
+    synthleak.localize.client.HttpLocalizer(url).localize(...)         # same interface over HTTP
+"""
 
 from synthleak.localize.defense import DefenseDecision, DefensePolicy, decide
 from synthleak.localize.localizer import LocalizationResult, Localizer

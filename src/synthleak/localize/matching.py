@@ -25,6 +25,8 @@ def match_features(a: Features, b: Features, ratio: float, mutual: bool) -> np.n
     """(M, 2) int indices ``(i in a, j in b)``; ratio <= 0 or >= 1 disables the ratio test."""
     if len(a) == 0 or len(b) == 0:
         return np.zeros((0, 2), np.int64)
+    if a.binary:
+        return _match_binary(a.descriptors, b.descriptors, ratio, mutual)
     dist = distance_matrix(a.descriptors, b.descriptors, a.binary)
     nn = np.argmin(dist, axis=1)
     keep = np.ones(len(a), dtype=bool)
@@ -33,5 +35,23 @@ def match_features(a: Features, b: Features, ratio: float, mutual: bool) -> np.n
         keep &= two[:, 0] < ratio * two[:, 1]
     if mutual:
         keep &= np.argmin(dist, axis=0)[nn] == np.arange(len(a))
+    idx = np.nonzero(keep)[0]
+    return np.stack([idx, nn[idx]], axis=1).astype(np.int64)
+
+
+def _match_binary(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool) -> np.ndarray:
+    """Hamming matching with OpenCV's brute-force matcher (SIMD popcount); same rules as above."""
+    import cv2
+
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    k = 2 if len(b) > 1 else 1
+    knn = matcher.knnMatch(a, b, k=k)
+    nn = np.array([m[0].trainIdx for m in knn], dtype=np.int64)
+    keep = np.ones(len(a), dtype=bool)
+    if 0.0 < ratio < 1.0 and k == 2:
+        keep &= np.array([m[0].distance < ratio * m[1].distance for m in knn])
+    if mutual:
+        back = np.array([m[0].trainIdx for m in matcher.knnMatch(b, a, k=1)], dtype=np.int64)
+        keep &= back[nn] == np.arange(len(a))
     idx = np.nonzero(keep)[0]
     return np.stack([idx, nn[idx]], axis=1).astype(np.int64)

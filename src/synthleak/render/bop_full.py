@@ -56,19 +56,17 @@ class ObjectSilhouette:
         mesh = trimesh.Trimesh(self.vertices, self.faces, process=False, validate=False)
         self._intersector = RayMeshIntersector(mesh, scale_to_box=False)
 
-    def hits(self, camera: Camera, cam_from_model: np.ndarray, us: np.ndarray, vs: np.ndarray) -> np.ndarray:
-        """Bool (len(vs), len(us)) grid: does the ray through pixel centre (u + 0.5, v + 0.5) hit the mesh."""
-        if len(us) == 0 or len(vs) == 0:
-            return np.zeros((len(vs), len(us)), dtype=bool)
-        u, v = np.meshgrid(us + 0.5, vs + 0.5)
+    def hits(self, camera: Camera, cam_from_model: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Bool per pixel (u[i], v[i]): does the ray through its centre (u + 0.5, v + 0.5) hit the mesh."""
+        if len(u) == 0:
+            return np.zeros(0, dtype=bool)
         dirs_cam = np.stack(
-            [(u.ravel() - camera.cx) / camera.fx, (v.ravel() - camera.cy) / camera.fy, np.ones(u.size)], axis=1
+            [(u + 0.5 - camera.cx) / camera.fx, (v + 0.5 - camera.cy) / camera.fy, np.ones(len(u))], axis=1
         )
         rot = np.asarray(cam_from_model, dtype=np.float64)[:3, :3]
         origin = -rot.T @ np.asarray(cam_from_model, dtype=np.float64)[:3, 3]
         dirs = dirs_cam @ rot
-        hit = self._intersector.intersects_any(np.broadcast_to(origin, dirs.shape), dirs)
-        return np.asarray(hit, dtype=bool).reshape(u.shape)
+        return np.asarray(self._intersector.intersects_any(np.broadcast_to(origin, dirs.shape), dirs), dtype=bool)
 
 
 def instance_model_meshes(scene: RenderScene) -> dict[int, tuple[np.ndarray, np.ndarray]]:
@@ -116,23 +114,29 @@ def gt_info_for(
     visible: np.ndarray,
     depth_valid: np.ndarray,
     enlarge: bool = True,
+    scene_miss: np.ndarray | None = None,
 ) -> tuple[dict[str, Any], np.ndarray]:
     """(scene_gt_info entry, full in-image mask) of one object in one frame.
 
-    ``visible``: bool (H, W) instance mask of the object; ``depth_valid``: bool (H, W) non-zero BOP depth."""
+    ``visible``: bool (H, W) instance mask of the object; ``depth_valid``: bool (H, W) non-zero BOP depth;
+    ``scene_miss``: bool (H, W) pixels whose ray hits nothing in the whole scene (so not this object either).
+    Only the pixels these do not decide are ray cast."""
     h, w = camera.height, camera.width
     us, vs = _region(camera, cam_from_model, silhouette.vertices, enlarge)
-    grid = silhouette.hits(camera, cam_from_model, us, vs)
+    u, v = (g.ravel() for g in np.meshgrid(us, vs))
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    hit = np.zeros(len(u), dtype=bool)
+    known = np.zeros(len(u), dtype=bool)
+    iu, iv = u[inside], v[inside]
+    hit[inside] = visible[iv, iu]
+    known[inside] = visible[iv, iu] | (scene_miss[iv, iu] if scene_miss is not None else False)
+    todo = ~known
+    hit[todo] = silhouette.hits(camera, cam_from_model, u[todo], v[todo])
     full = np.zeros((h, w), dtype=bool)
-    if grid.size:
-        iu = (us >= 0) & (us < w)
-        iv = (vs >= 0) & (vs < h)
-        if iu.any() and iv.any():
-            full[np.ix_(vs[iv], us[iu])] = grid[np.ix_(iv, iu)]
-    extra = visible & ~full  # rays that hit the object in the scene must hit it alone (float guard)
+    full[v[inside & hit], u[inside & hit]] = True
+    extra = visible & ~full  # visible pixels outside the cast region (never for a correct region)
     full |= visible
-    ys, xs = np.nonzero(grid)
-    all_x, all_y = us[xs], vs[ys]
+    all_x, all_y = u[hit], v[hit]
     if extra.any():
         ey, ex = np.nonzero(extra)
         all_x, all_y = np.concatenate([all_x, ex]), np.concatenate([all_y, ey])
@@ -149,8 +153,9 @@ def gt_info_for(
     return info, full
 
 
-def depth_png(depth_m: np.ndarray, depth_scale: float, where: str = "depth") -> np.ndarray:
-    """uint16 BOP depth (``depth_mm = png * depth_scale``); no hit and out-of-range depths become 0."""
+def depth_png(depth_m: np.ndarray, depth_scale: float, where: str = "depth", warn: bool = True) -> np.ndarray:
+    """uint16 BOP depth (``depth_mm = png * depth_scale``); no hit and out-of-range depths (deeper than
+    ``65535 * depth_scale`` mm: 6.55 m at 0.1) become 0, with a warning when ``warn``."""
     if not depth_scale > 0:
         raise ValueError(f"depth_scale must be > 0, got {depth_scale}")
     scaled = np.asarray(depth_m, dtype=np.float64) * 1000.0 / depth_scale
@@ -158,7 +163,7 @@ def depth_png(depth_m: np.ndarray, depth_scale: float, where: str = "depth") -> 
     out = np.zeros(scaled.shape, dtype=np.uint16)
     values = np.round(scaled[finite])
     over = values > np.iinfo(np.uint16).max
-    if over.any():
+    if over.any() and warn:
         warnings.warn(
             f"{where}: {int(over.sum())} pixels deeper than {65535 * depth_scale / 1000:.2f} m do not fit "
             f"16 bits at depth_scale {depth_scale}; stored as 0 (invalid). Use a larger depth_scale.",
@@ -202,13 +207,16 @@ def write_bop_extras(seq_dir: Path, scene: RenderScene, depth_scale: float = 0.1
     silhouettes: dict[int, ObjectSilhouette] = {}
     roles = {iid: info.role for iid, info in scene.instances.items()}
     gt_info: dict[str, list[dict[str, Any]]] = {}
+    too_deep = 0
     for key in sorted(scene_gt, key=int):
         im_id = int(key)
         depth = seq.depth(im_id)
         instance = seq.instance(im_id)
-        png = depth_png(depth, depth_scale, f"{seq_dir / 'depth' / f'{im_id:06d}.npy'}")
+        png = depth_png(depth, depth_scale, warn=False)
+        too_deep += int((np.isfinite(depth) & (png == 0)).sum())
         atomic_write_bytes(bop / "depth" / f"{im_id:06d}.png", encode_png(png))
         valid = png > 0
+        miss = (instance == 0) & ~np.isfinite(depth)
         entries = []
         for gt_id, entry in enumerate(scene_gt[key]):
             obj_id = int(entry["obj_id"])
@@ -224,6 +232,7 @@ def write_bop_extras(seq_dir: Path, scene: RenderScene, depth_scale: float = 0.1
                 visible,
                 valid,
                 enlarge=roles.get(obj_id) != "shell",
+                scene_miss=miss,
             )
             entries.append(info)
             name = f"{im_id:06d}_{gt_id:06d}.png"
@@ -231,6 +240,12 @@ def write_bop_extras(seq_dir: Path, scene: RenderScene, depth_scale: float = 0.1
             atomic_write_bytes(bop / "mask_visib" / name, encode_png(visible.astype(np.uint8) * 255))
         gt_info[key] = entries
     atomic_write_json(bop / "scene_gt_info.json", gt_info)
+    if too_deep:
+        warnings.warn(
+            f"{seq_dir}: {too_deep} depth pixels deeper than {65535 * depth_scale / 1000:.2f} m do not fit 16 bits "
+            f"at depth_scale {depth_scale}; stored as 0 (invalid) in bop/depth. Use a larger depth_scale.",
+            stacklevel=2,
+        )
     for entry in scene_camera.values():
         entry["depth_scale"] = float(depth_scale)
     atomic_write_json(cam_path, scene_camera)

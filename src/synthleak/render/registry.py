@@ -13,8 +13,8 @@ RendererFactory = Callable[[RenderConfig], Renderer]
 _FACTORIES: dict[str, RendererFactory] = {}
 _INSTALL_HINTS: dict[str, str] = {
     "mitsuba": "pip install 'mitsuba>=3.5' (variant scalar_rgb)",
-    "pyrender": "pip install pyrender 'PyOpenGL>=3.1.7' and an OSMesa or EGL library",
-    "blender": "pip install bpy (Python 3.11, numpy<2)",
+    "pyrender": "apt-get install libegl1 libgl1-mesa-dri; pip install -e '.[pyrender]'; PYOPENGL_PLATFORM=egl",
+    "blender": "pip install -e '.[blender]' in a separate Python 3.11 venv (bpy pins numpy<2)",
 }
 
 
