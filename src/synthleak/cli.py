@@ -48,6 +48,29 @@ def _cmd_generate(args: argparse.Namespace) -> None:
     print(f"dataset written to {out}")
 
 
+def _cmd_import(args: argparse.Namespace) -> None:
+    from synthleak.assets.importer import import_model
+
+    model = import_model(Path(args.file), args.category, name=args.name, up=args.up, front=args.front,
+                         units=args.units, height=args.height, scale=args.scale, symmetry=args.symmetry,
+                         support=args.support, overwrite=args.overwrite)
+    size = ", ".join(f"{s:.3f}" for s in model.size)
+    print(f"imported {model.model_id} ({model.category}, size {size} m) into {Path(model.source).parent}")
+
+
+def _cmd_show(args: argparse.Namespace) -> None:
+    target = Path(args.path)
+    if target.suffix.lower() in (".usd", ".usda", ".usdc", ".usdz"):
+        from synthleak.inspect import plan_view
+
+        out = plan_view(target, Path(args.out), Path(args.dataset) if args.dataset else None)
+    else:
+        from synthleak.inspect import contact_sheet
+
+        out = contact_sheet(target, Path(args.out), sequence=args.sequence, frames=args.frames)
+    print(f"wrote {out}")
+
+
 def _localize_config(config_name: str | None):
     from synthleak.config import LocalizeConfig, load_config
 
@@ -112,6 +135,28 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("generate", _cmd_generate, "stages + renders in one go (resumable)")
     p.add_argument("config")
     p.add_argument("--out", required=True, help="dataset folder")
+
+    p = command("import", _cmd_import, "add your own textured model (OBJ, GLB/glTF, PLY, USD/USDZ) to the library")
+    p.add_argument("file")
+    p.add_argument("--category", required=True)
+    p.add_argument("--name", help="model id (default: from the file name)")
+    p.add_argument("--up", default="z", choices=["z", "y", "+z", "+y", "-z", "-y", "x", "+x", "-x"],
+                   help="the file's up axis")
+    p.add_argument("--front", default="+y", help="the file's front axis (+y, -z, ...)")
+    p.add_argument("--units", default="m", choices=["m", "cm", "mm", "in", "ft"])
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--height", type=float, help="scale uniformly to this height in metres")
+    size.add_argument("--scale", type=float, help="uniform scale factor after unit conversion")
+    p.add_argument("--symmetry", default="none", choices=["none", "2", "4", "z"])
+    p.add_argument("--support", default="floor", choices=["floor", "wall", "ceiling", "surface"])
+    p.add_argument("--overwrite", action="store_true", help="replace an imported model with the same id")
+
+    p = command("show", _cmd_show, "contact sheet of a dataset, or a top-down plan of a USD stage")
+    p.add_argument("path", help="a dataset / sequence folder, or a .usda stage")
+    p.add_argument("--out", required=True, help="PNG to write")
+    p.add_argument("--sequence", help="sequence inside the dataset, e.g. scenes/room_000")
+    p.add_argument("--frames", type=int, default=4, help="frames sampled for the contact sheet")
+    p.add_argument("--dataset", help="a sequence folder whose camera path the stage plan shows")
 
     p = command("map", _cmd_map, "build a localization map from a rendered scene sequence")
     p.add_argument("scene", help="a scene sequence folder, e.g. DATASET/scenes/room_000")

@@ -74,6 +74,7 @@ _TOP_KEYS = {
     "texture_size",
     "params",
     "textures",
+    "imported",
 }
 
 
@@ -118,6 +119,10 @@ class ObjectModel:
 
     def material_texture(self, material: str) -> np.ndarray:
         """The (cached, read-only) base texture of one material slot."""
+        if self.builder == "imported":
+            from synthleak.assets.import_store import imported_texture
+
+            return imported_texture(self, material)
         spec = self.textures[material]
         return _cached_texture(
             self.model_id,
@@ -158,6 +163,10 @@ def build_model(
     """Build ``model`` at ``params`` -> (mesh in the canonical frame, support surfaces).
 
     ``textures`` optionally replaces material textures (variants pass recoloured ones)."""
+    if model.builder == "imported":
+        from synthleak.assets.import_store import build_imported
+
+        return build_imported(model, params, textures), []
     spec = BUILDERS[model.builder]
     p: dict[str, float] = {k: float(v) for k, v in spec.params.items() if v is not None}
     p.update(model.default_params())
@@ -204,6 +213,10 @@ def _parse_model(path: Path) -> ObjectModel:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as e:
         raise ValueError(f"{path}: not valid TOML: {e}") from e
+    if data.get("builder") == "imported":
+        from synthleak.assets.import_store import parse_imported_model
+
+        return parse_imported_model(path, data)
     for k in data:
         if k not in _TOP_KEYS:
             raise _err(path, k, f"unknown key (known: {', '.join(sorted(_TOP_KEYS))})")
@@ -343,7 +356,7 @@ def load_library(directory: Path | None = None) -> dict[str, ObjectModel]:
     if not d.is_dir():
         raise FileNotFoundError(f"object library folder {d} does not exist")
     models: dict[str, ObjectModel] = {}
-    for path in sorted(d.glob("*.toml")):
+    for path in sorted(d.glob("*.toml")) + sorted(d.glob("imported/*/*.toml")):
         m = _parse_model(path)
         if m.model_id in models:
             raise _err(path, "id", f"duplicate id {m.model_id!r} (also in {models[m.model_id].source})")

@@ -123,6 +123,10 @@ def variant(model: ObjectModel, seed: int, magnitude: float, kinds: Sequence[str
     if not np.isfinite(magnitude) or magnitude < 0:
         raise ValueError(f"magnitude must be a finite number >= 0, got {magnitude}")
     m = float(magnitude)
+    if "shape" in kinds and model.builder == "imported":
+        from synthleak.assets.importer import check_variant_kinds
+
+        check_variant_kinds(model, kinds)
     shape = model.default_params()
     if "shape" in kinds:
         rng = make_rng(seed, "variant", model.model_id, "shape")

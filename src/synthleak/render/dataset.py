@@ -29,6 +29,10 @@ from synthleak.render.base import Camera, Frame, InstanceInfo
 TEMP_PREFIX = ".tmp-"
 
 
+BOP_DEPTH_SCALE = 0.25
+"""BOP 16-bit depth PNGs hold depth_mm / BOP_DEPTH_SCALE: 0.25 mm steps up to 16.4 m (0.1 would stop at 6.5 m)."""
+
+
 class DatasetError(ValueError):
     """A malformed dataset file; the message names the file and the field."""
 
@@ -247,7 +251,7 @@ def write_sequence_metadata(
             "cam_K": cam_k,
             "cam_R_w2c": pose[:3, :3].ravel().tolist(),
             "cam_t_w2c": (pose[:3, 3] * 1000.0).tolist(),
-            "depth_scale": 1.0,
+            "depth_scale": BOP_DEPTH_SCALE,
         }
         entries = []
         for info in instances:

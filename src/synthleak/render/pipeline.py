@@ -20,7 +20,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from synthleak.config import StudyConfig, config_to_dict
 from synthleak.render.base import Camera, RenderScene
+from synthleak.render.bop_full import write_bop_extras
 from synthleak.render.dataset import (
+    BOP_DEPTH_SCALE,
     atomic_write_json,
     check_existing_plan,
     clean_temp_files,
@@ -144,6 +146,8 @@ def render_scene_sequence(
                 frame = renderer.render(camera, poses[i], derive_seed(config.seed, "render", name, i))
                 write_frame(out_dir, frames[i], frame)
                 bar.advance(task)
+    if todo or not (out_dir / "bop" / "scene_gt_info.json").is_file():
+        write_bop_extras(out_dir, scene, depth_scale=BOP_DEPTH_SCALE)
     return out_dir
 
 

@@ -329,6 +329,20 @@ def _connected_shader(inp: UsdShade.Input) -> tuple[UsdShade.Shader | None, str]
     return UsdShade.Shader(info.source.GetPrim()), info.sourceName
 
 
+def _packaged_texture(resolved: str) -> np.ndarray:
+    """RGB uint8 texture stored inside a USDZ package (``/path/file.usdz[inner.png]``)."""
+    from io import BytesIO
+
+    from PIL import Image
+    from pxr import Ar
+
+    asset = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(resolved))
+    if asset is None:
+        raise OSError(f"cannot open {resolved}")
+    with Image.open(BytesIO(bytes(asset.GetBuffer()))) as img:
+        return np.asarray(img.convert("RGB"), dtype=np.uint8).copy()
+
+
 @dataclass
 class _Material:
     texture: np.ndarray | None = None
@@ -400,12 +414,13 @@ class _Reader:
         if asset is None or not asset.path:
             self.warn(source.GetPrim(), "UsdUVTexture without a file; grey used")
             return out
-        if not asset.resolvedPath or not Path(asset.resolvedPath).is_file():
-            raise self.fail(source.GetPrim(), f"texture {asset.path!r} not found")
         resolved = asset.resolvedPath
+        packaged = bool(resolved) and resolved.endswith("]") and "[" in resolved  # inside a .usdz package
+        if not resolved or (not packaged and not Path(resolved).is_file()):
+            raise self.fail(source.GetPrim(), f"texture {asset.path!r} not found")
         if resolved not in self.textures:
             try:
-                self.textures[resolved] = load_texture(Path(resolved))
+                self.textures[resolved] = _packaged_texture(resolved) if packaged else load_texture(Path(resolved))
             except OSError as exc:
                 raise self.fail(source.GetPrim(), f"texture {asset.path!r} unreadable: {exc}") from exc
         out.texture = self.textures[resolved]
