@@ -48,8 +48,7 @@ def pose_errors(estimate: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
 @pytest.fixture(scope="module")
 def study_scene(tmp_path_factory) -> Path:
     """A tiny study rendered by the real pipeline (mitsuba): ``scenes/room_000``."""
-    from synthleak.render.pipeline import render_stages
-    from synthleak.scene.generate import write_study_stages
+    from synthleak.render.pipeline import generate
 
     config = config_from_dict({
         "name": "localize-test", "seed": 3,
@@ -60,8 +59,7 @@ def study_scene(tmp_path_factory) -> Path:
                    "spp": 4, "integrator": "direct", "filter": "box"},
     })
     out = tmp_path_factory.mktemp("study")
-    write_study_stages(config, out / "stages")  # = render.pipeline.generate, which passes index.json on
-    render_stages(config, out / "stages", out, progress=False)
+    generate(config, out, progress=False)
     scenes = sorted((out / "scenes").iterdir())
     assert scenes, "the pipeline wrote no scene sequence"
     return scenes[0]

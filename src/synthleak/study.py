@@ -109,15 +109,20 @@ def stage_maps(config: StudyConfig, paths: StudyPaths, render_key: str, force: s
 
 
 # ---------------------------------------------------------------------------------------------- queries
-def _query_plan(config: StudyConfig, paths: StudyPaths, room: str, index: dict[str, Any]) -> list[dict]:
-    """Every image sent to one room's server: its genuine held-out frames and every attacker frame."""
+def _query_plan(config: StudyConfig, scene_dataset: Path, attacker_dataset: Path, room: str,
+                genuine: bool = True) -> list[dict]:
+    """Every image sent to one room's server: its genuine held-out frames and every attacker frame.
+
+    ``sequence`` is the sequence folder relative to its dataset; ``dataset`` says which one."""
     from synthleak.render.dataset import load_sequence
 
-    scene = load_sequence(paths.dataset / "scenes" / room)
-    plan = [{"sequence": f"scenes/{room}", "frame": f, "genuine": True, "attacker_object": None}
-            for f in scene.split["query"]]
-    for obj in index["attacker_objects"]:
-        seq = load_sequence(paths.dataset / "attackers" / obj["id"])
+    plan = []
+    if genuine:
+        scene = load_sequence(scene_dataset / "scenes" / room)
+        plan += [{"sequence": f"scenes/{room}", "frame": f, "genuine": True, "attacker_object": None}
+                 for f in scene.split["query"]]
+    for obj in load_index(attacker_dataset)["attacker_objects"]:
+        seq = load_sequence(attacker_dataset / "attackers" / obj["id"])
         frames = seq.frames[: config.attack.queries_per_object or None]
         plan += [{"sequence": f"attackers/{obj['id']}", "frame": f, "genuine": False,
                   "attacker_object": obj["id"]} for f in frames]
@@ -135,25 +140,32 @@ def _make_localizer(map_dir: Path, config: StudyConfig, server_url: str | None):
 
 
 def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, str], Path], force: set[str],
-                  progress: bool, server_url: str | None = None) -> dict[tuple[str, str], Path]:
-    """Send every planned image to each (tier, room) server; log one JSON line per query."""
+                  progress: bool, server_url: str | None = None, attacker_dataset: Path | None = None,
+                  out_root: Path | None = None) -> dict[tuple[str, str], Path]:
+    """Send every planned image to each (tier, room) server; log one JSON line per query.
+
+    By default the attacker images come from the study's dataset and genuine queries are included; a
+    variant sweep passes its own ``attacker_dataset`` and ``out_root`` (attacker queries only)."""
     from synthleak.render.dataset import load_sequence
 
-    index = load_index(paths.dataset)
+    genuine = attacker_dataset is None
+    attacker_dataset = attacker_dataset or paths.dataset
+    out_root = out_root or paths.queries
     logs: dict[tuple[str, str], Path] = {}
     for (tier, room), map_dir in maps.items():
-        out = paths.queries / tier / room
-        key = cache_key("queries", done_key(map_dir),
+        out = out_root / tier / room
+        key = cache_key("queries", done_key(map_dir), done_key(attacker_dataset), genuine,
                         config.attack.queries_per_object, server_url)
         logs[(tier, room)] = out / "queries.jsonl"
         if "queries" not in force and is_done(out, key):
             continue
         localizer = _make_localizer(map_dir, config, server_url)
-        plan = _query_plan(config, paths, room, index)
+        plan = _query_plan(config, paths.dataset, attacker_dataset, room, genuine)
         sequences: dict[str, Any] = {}
         lines = []
         for item in progress_bar(plan, f"queries {tier}/{room}", enabled=progress):
-            seq = sequences.setdefault(item["sequence"], load_sequence(paths.dataset / item["sequence"]))
+            base = paths.dataset if item["genuine"] else attacker_dataset
+            seq = sequences.setdefault(item["sequence"], load_sequence(base / item["sequence"]))
             result = localizer.localize(seq.image_path(item["frame"]).read_bytes(), seq.camera)
             pose = result.cam_from_world
             lines.append(json.dumps({
@@ -174,7 +186,7 @@ def read_query_log(path: Path) -> list[dict[str, Any]]:
 
 
 # ----------------------------------------------------------------------------------------------- attack
-def _attacker_local_model(config: StudyConfig, paths: StudyPaths, obj_id: str, seq: Any
+def _attacker_local_model(config: StudyConfig, sfm_root: Path, obj_id: str, seq: Any
                           ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """The attacker's local poses (``cam_from_object`` / ``cam_from_local``) and, for SfM, the
     scoring-only ``object_from_local``."""
@@ -184,13 +196,14 @@ def _attacker_local_model(config: StudyConfig, paths: StudyPaths, obj_id: str, s
         return oracle_local_poses(seq), None
     if config.attack.local_model == "sfm":
         target = seq.objects_by_id()[seq.target_instance_id]
-        model = sfm_local_poses(seq, target.extents, paths.root / "sfm" / obj_id)
+        model = sfm_local_poses(seq, target.extents, sfm_root / obj_id)
         return dict(model.cam_from_local), model.object_from_local
     raise ValueError(f"attack.local_model: unknown value {config.attack.local_model!r} (oracle, sfm)")
 
 
 def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, str], Path],
-                magnitude: float | None = None, kind: str | None = None) -> list[dict[str, Any]]:
+                attacker_dataset: Path | None = None, magnitude: float | None = None, kind: str | None = None
+                ) -> list[dict[str, Any]]:
     """One results row per (room, attacker object, tier, aligner, thresholds), presence decided
     leave-one-scene-out and placement scored against the room's ground truth."""
     from synthleak.attack.run import run_attack
@@ -198,13 +211,14 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
     from synthleak.evaluate.tables import apply_presence_decisions
     from synthleak.render.dataset import load_sequence
 
-    index = load_index(paths.dataset)
+    attacker_dataset = attacker_dataset or paths.dataset
+    index = load_index(attacker_dataset)
     rooms = {room["name"]: load_sequence(paths.dataset / "scenes" / room["name"]).objects_by_id()
-             for room in index["rooms"]}
+             for room in load_index(paths.dataset)["rooms"]}
     rows: list[dict[str, Any]] = []
     for obj in index["attacker_objects"]:
-        seq = load_sequence(paths.dataset / "attackers" / obj["id"])
-        local, object_from_local = _attacker_local_model(config, paths, obj["id"], seq)
+        seq = load_sequence(attacker_dataset / "attackers" / obj["id"])
+        local, object_from_local = _attacker_local_model(config, attacker_dataset.parent / "sfm", obj["id"], seq)
         target = seq.objects_by_id()[seq.target_instance_id]
         for (tier, room), log in sorted(logs.items()):
             records = [q for q in read_query_log(log) if q["attacker_object"] == obj["id"]]
@@ -244,6 +258,47 @@ def stage_attack(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, s
     rows = attack_rows(config, paths, logs)
     write_results(rows, paths.results)
     mark_done(paths.results, key)
+    return rows
+
+
+# ------------------------------------------------------------------------------------------------ sweep
+SWEEP_KINDS = ("all", "colour", "scale", "shape")
+
+
+def stage_sweep(config: StudyConfig, paths: StudyPaths, render_key: str, maps: dict[tuple[str, str], Path],
+                force: set[str], progress: bool, server_url: str | None = None) -> list[dict[str, Any]]:
+    """Leakage against dissimilarity: re-make only the attacker objects at each (kind, magnitude) of
+    ``[sweep]``, send them to the same servers, and attack. Rooms, renders of rooms and maps are reused."""
+    import shutil
+
+    from synthleak.evaluate.tables import write_results
+    from synthleak.render.pipeline import render_sequence
+    from synthleak.scene.generate import write_study_stages
+
+    rows: list[dict[str, Any]] = []
+    for kind in config.sweep.kinds:
+        if kind not in SWEEP_KINDS:
+            raise ValueError(f"sweep.kinds: unknown kind {kind!r} (allowed: {', '.join(SWEEP_KINDS)})")
+        kinds = list(config.scenes.attacker_variant_kinds) if kind == "all" else [kind]
+        for magnitude in config.sweep.magnitudes:
+            folder = paths.root / "sweep" / f"{kind}-{magnitude:g}"
+            dataset = folder / "dataset"
+            key = cache_key("sweep-render", render_key, kinds, magnitude)
+            if "render" in force or not is_done(dataset, key):
+                stages = dataset / "stages"
+                if not stages.exists():  # rooms are byte-identical: start from them, rewrite attackers only
+                    shutil.copytree(paths.dataset / "stages", stages)
+                write_study_stages(config, stages, attacker_magnitude=magnitude, attacker_kinds=kinds,
+                                   progress=progress)
+                for obj in load_index(dataset)["attacker_objects"]:
+                    render_sequence(stages / obj["stage"], dataset / "attackers" / obj["id"], config, "attacker",
+                                    progress=progress)
+                mark_done(dataset, key)
+            logs = stage_queries(config, paths, maps, force, progress, server_url, attacker_dataset=dataset,
+                                 out_root=folder / "queries")
+            rows += attack_rows(config, paths, logs, dataset, magnitude, kind)
+    if rows:
+        write_results(rows, paths.results, stem="sweep")
     return rows
 
 
@@ -317,8 +372,25 @@ def _room_plots(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any
     return out
 
 
+def _sweep_section(sweep_rows: list[dict[str, Any]], paths: StudyPaths, plots: list[Path]) -> list[str]:
+    """Report lines for the variant-magnitude sweep (and its plot appended to ``plots``)."""
+    if not sweep_rows:
+        return []
+    from synthleak.evaluate.plots import leakage_vs_magnitude, plot_leakage_vs_magnitude
+
+    plots.append(plot_leakage_vs_magnitude(sweep_rows, paths.plots / "leakage_vs_magnitude.png"))
+    stats = leakage_vs_magnitude(sweep_rows)
+    columns = ["tier", "aligner", "delta_r_deg", "delta_t_m", "kind", "magnitude", "precision", "recall",
+               "placement_success", "n_pairs"]
+    return ["## Leakage against dissimilarity (attacker variant magnitude sweep)\n",
+            "Presence precision/recall and placement success at 30°/0.5 m for attacker objects made with "
+            "growing variant magnitude (colour, scale, shape, each alone and together).\n",
+            _markdown_table(stats, columns)]
+
+
 def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]],
-                 logs: dict[tuple[str, str], Path], timings: dict[str, float]) -> Path:
+                 logs: dict[tuple[str, str], Path], timings: dict[str, float],
+                 sweep_rows: list[dict[str, Any]] | None = None) -> Path:
     """``report.md`` with the paper-shaped tables, placement and defense figures, and the plots."""
     from synthleak.evaluate.defense_sweep import defense_tradeoff
     from synthleak.evaluate.plots import plot_defense_tradeoff, plot_placement_cdfs, plot_presence_pr
@@ -360,6 +432,7 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         "## Defense trade-off (paper Fig. 6, exact instance labels)\n",
         _markdown_table([t for t in tradeoff if t.get("tier") == "all"],
                         [k for k in (tradeoff[0] if tradeoff else {}) if k != "tier"]),
+        *_sweep_section(sweep_rows or [], paths, plots),
         "## Plots\n",
         "\n".join(f"![{p.stem}](plots/{p.name})" for p in plots) + "\n",
         "## Wall time per stage (this run; cached stages take ~0 s)\n",
@@ -390,6 +463,7 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
     maps = timed("maps", stage_maps, config, paths, render_key, forced, progress)
     logs = timed("queries", stage_queries, config, paths, maps, forced, progress, server_url)
     rows = timed("attack", stage_attack, config, paths, logs, forced)
-    report = timed("report", stage_report, config, paths, rows, logs, timings)
+    sweep_rows = timed("sweep", stage_sweep, config, paths, render_key, maps, forced, progress, server_url)
+    report = timed("report", stage_report, config, paths, rows, logs, timings, sweep_rows)
     write_text_atomic(paths.root / "timings.json", json.dumps(timings, indent=1))
     return report
