@@ -17,7 +17,7 @@ import numpy as np
 
 from synthleak.cache import cache_key, done_key, is_done, mark_done, write_text_atomic
 from synthleak.config import StudyConfig, config_to_dict
-from synthleak.progress import progress_bar
+from synthleak.executors import Executor, LocalExecutor
 
 STAGES = ("render", "maps", "queries", "attack", "report")
 
@@ -74,7 +74,8 @@ def load_index(dataset: Path) -> dict[str, Any]:
 
 
 # ----------------------------------------------------------------------------------------------- render
-def stage_render(config: StudyConfig, paths: StudyPaths, force: set[str], progress: bool) -> str:
+def stage_render(config: StudyConfig, paths: StudyPaths, force: set[str], progress: bool,
+                 executor: Executor | None = None) -> str:
     """Stages and renders (the render pipeline resumes frame by frame by itself)."""
     from synthleak.render.pipeline import generate
 
@@ -84,27 +85,46 @@ def stage_render(config: StudyConfig, paths: StudyPaths, force: set[str], progre
     old_key = done_key(paths.dataset)
     if old_key is not None and old_key != key:  # rendered with another config: keep it aside, never delete
         paths.dataset.rename(paths.root / f"dataset.{old_key[:12]}")
-    generate(config, paths.dataset, progress=progress)
+    generate(config, paths.dataset, progress=progress, executor=executor)
     mark_done(paths.dataset, key)
     return key
 
 
 # ------------------------------------------------------------------------------------------------- maps
-def stage_maps(config: StudyConfig, paths: StudyPaths, render_key: str, force: set[str], progress: bool
-               ) -> dict[tuple[str, str], Path]:
-    """One map per (tier, room)."""
+def _build_map_task(task: tuple[Path, str, Path, Any]) -> Path:
+    """One (tier, room) map (a worker task; ``build_map`` is single threaded and deterministic)."""
     from synthleak.localize.mapping import build_map
 
+    sequence_dir, tier, out, localize = task
+    return build_map(sequence_dir, tier, out, localize, progress=False)
+
+
+def _map_key(config: StudyConfig, render_key: str, tier: str) -> str:
+    """A map depends on the renders, its tier and the localize settings, not on the other tiers."""
+    localize = {k: v for k, v in _section(config, "localize").items() if k != "tiers"}
+    return cache_key("map", render_key, tier, localize)
+
+
+def stage_maps(config: StudyConfig, paths: StudyPaths, render_key: str, force: set[str], progress: bool,
+               executor: Executor | None = None) -> dict[tuple[str, str], Path]:
+    """One map per (tier, room), built in parallel over ``executor``."""
     index = load_index(paths.dataset)
     maps: dict[tuple[str, str], Path] = {}
+    todo: list[tuple[Path, str, Path, Any]] = []
+    keys: list[tuple[Path, str]] = []
     for tier in config.localize.tiers:
         for room in index["rooms"]:
             out = paths.maps / tier / room["name"]
-            key = cache_key("map", render_key, tier, _section(config, "localize"))
+            key = _map_key(config, render_key, tier)
             if "maps" in force or not is_done(out, key):
-                build_map(paths.dataset / "scenes" / room["name"], tier, out, config.localize, progress=progress)
-                mark_done(out, key)
+                if "maps" in force:
+                    (out / "map.json").unlink(missing_ok=True)  # build_map reuses a matching map otherwise
+                todo.append((paths.dataset / "scenes" / room["name"], tier, out, config.localize))
+                keys.append((out, key))
             maps[(tier, room["name"])] = out
+    (executor or LocalExecutor(1)).map(_build_map_task, todo, "maps", progress)
+    for out, key in keys:
+        mark_done(out, key)
     return maps
 
 
@@ -129,29 +149,81 @@ def _query_plan(config: StudyConfig, scene_dataset: Path, attacker_dataset: Path
     return plan
 
 
-def _make_localizer(map_dir: Path, config: StudyConfig, server_url: str | None):
+QUERIES_PER_TASK = 50
+"""Localization queries per worker task (a worker loads each map once and keeps it for its next tasks)."""
+
+_WORKER_LOCALIZER: dict[str, Any] = {}
+"""The localizer of the last map a task in this process used (one map at a time, to bound memory)."""
+
+
+def _make_localizer(map_dir: Path, config: StudyConfig | Any, server_url: str | None):
     if server_url:
         from synthleak.localize.client import HttpLocalizer
 
         return HttpLocalizer(server_url)
     from synthleak.localize.localizer import Localizer
 
-    return Localizer.load(map_dir, config.localize)
+    localize = config.localize if isinstance(config, StudyConfig) else config
+    return Localizer.load(map_dir, localize)
+
+
+@dataclass
+class QueryTask:
+    """Consecutive planned queries of one (tier, room) server, for one worker."""
+
+    map_dir: Path
+    localize: Any
+    server_url: str | None
+    tier: str
+    room: str
+    items: list[dict[str, Any]]
+    """Plan entries plus ``_image`` (the image's path) and ``_camera`` (its intrinsics)."""
+
+
+def _cached_localizer(task: QueryTask):
+    key = repr((str(task.map_dir), done_key(task.map_dir), task.server_url, config_to_dict(task.localize)))
+    if _WORKER_LOCALIZER.get("key") != key:
+        _WORKER_LOCALIZER.clear()
+        _WORKER_LOCALIZER.update(key=key, localizer=_make_localizer(task.map_dir, task.localize, task.server_url))
+    return _WORKER_LOCALIZER["localizer"]
+
+
+def query_task(task: QueryTask) -> list[str]:
+    """Localize each image of the task; one JSON line per query, in the task's order (a worker task)."""
+    localizer = _cached_localizer(task)
+    lines = []
+    for entry in task.items:
+        item = {k: v for k, v in entry.items() if not k.startswith("_")}
+        result = localizer.localize(Path(entry["_image"]).read_bytes(), entry["_camera"])
+        pose = result.cam_from_world
+        lines.append(json.dumps({
+            **item, "tier": task.tier, "room": task.room, "success": bool(result.success),
+            "cam_from_world": None if pose is None else np.asarray(pose).tolist(),
+            "num_inliers": int(getattr(result, "num_inliers", 0) or 0),
+            "inlier_instance_counts": {str(k): int(v) for k, v in
+                                       sorted((getattr(result, "inlier_instance_counts", None) or {}).items())},
+        }, sort_keys=True))
+    return lines
 
 
 def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, str], Path], force: set[str],
                   progress: bool, server_url: str | None = None, attacker_dataset: Path | None = None,
-                  out_root: Path | None = None) -> dict[tuple[str, str], Path]:
+                  out_root: Path | None = None, executor: Executor | None = None) -> dict[tuple[str, str], Path]:
     """Send every planned image to each (tier, room) server; log one JSON line per query.
 
     By default the attacker images come from the study's dataset and genuine queries are included; a
-    variant sweep passes its own ``attacker_dataset`` and ``out_root`` (attacker queries only)."""
+    variant sweep passes its own ``attacker_dataset`` and ``out_root`` (attacker queries only). Queries
+    run in chunks over ``executor``; each log is in plan order whatever the executor."""
+    from synthleak.executors import chunks
     from synthleak.render.dataset import load_sequence
 
     genuine = attacker_dataset is None
     attacker_dataset = attacker_dataset or paths.dataset
     out_root = out_root or paths.queries
     logs: dict[tuple[str, str], Path] = {}
+    todo: list[tuple[tuple[str, str], Path, str, int]] = []  # (tier, room), folder, key, number of tasks
+    tasks: list[QueryTask] = []
+    sequences: dict[Path, Any] = {}
     for (tier, room), map_dir in maps.items():
         out = out_root / tier / room
         key = cache_key("queries", done_key(map_dir), done_key(attacker_dataset), genuine,
@@ -159,23 +231,19 @@ def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, 
         logs[(tier, room)] = out / "queries.jsonl"
         if "queries" not in force and is_done(out, key):
             continue
-        localizer = _make_localizer(map_dir, config, server_url)
         plan = _query_plan(config, paths.dataset, attacker_dataset, room, genuine)
-        sequences: dict[str, Any] = {}
-        lines = []
-        for item in progress_bar(plan, f"queries {tier}/{room}", enabled=progress):
-            base = paths.dataset if item["genuine"] else attacker_dataset
-            seq = sequences.setdefault(item["sequence"], load_sequence(base / item["sequence"]))
-            result = localizer.localize(seq.image_path(item["frame"]).read_bytes(), seq.camera)
-            pose = result.cam_from_world
-            lines.append(json.dumps({
-                **item, "tier": tier, "room": room, "success": bool(result.success),
-                "cam_from_world": None if pose is None else np.asarray(pose).tolist(),
-                "num_inliers": int(getattr(result, "num_inliers", 0) or 0),
-                "inlier_instance_counts": {str(k): int(v) for k, v in
-                                           sorted((getattr(result, "inlier_instance_counts", None) or {}).items())},
-            }, sort_keys=True))
-        write_text_atomic(logs[(tier, room)], "\n".join(lines) + "\n")
+        for item in plan:
+            folder = (paths.dataset if item["genuine"] else attacker_dataset) / item["sequence"]
+            seq = sequences.get(folder) or sequences.setdefault(folder, load_sequence(folder))
+            item |= {"_image": str(seq.image_path(item["frame"])), "_camera": seq.camera}
+        parts = [QueryTask(map_dir, config.localize, server_url, tier, room, c) for c in chunks(plan, QUERIES_PER_TASK)]
+        todo.append(((tier, room), out, key, len(parts)))
+        tasks += parts
+    results = iter((executor or LocalExecutor(1)).map(query_task, tasks, "queries", progress))
+    _WORKER_LOCALIZER.clear()
+    for name, out, key, n_tasks in todo:
+        lines = [line for _ in range(n_tasks) for line in next(results)]
+        write_text_atomic(logs[name], "\n".join(lines) + "\n")
         mark_done(out, key)
     return logs
 
@@ -266,13 +334,14 @@ SWEEP_KINDS = ("all", "colour", "scale", "shape")
 
 
 def stage_sweep(config: StudyConfig, paths: StudyPaths, render_key: str, maps: dict[tuple[str, str], Path],
-                force: set[str], progress: bool, server_url: str | None = None) -> list[dict[str, Any]]:
+                force: set[str], progress: bool, server_url: str | None = None, executor: Executor | None = None
+                ) -> list[dict[str, Any]]:
     """Leakage against dissimilarity: re-make only the attacker objects at each (kind, magnitude) of
     ``[sweep]``, send them to the same servers, and attack. Rooms, renders of rooms and maps are reused."""
     import shutil
 
     from synthleak.evaluate.tables import write_results
-    from synthleak.render.pipeline import render_sequence
+    from synthleak.render.pipeline import SequenceJob, render_sequences
     from synthleak.scene.generate import write_study_stages
 
     rows: list[dict[str, Any]] = []
@@ -290,12 +359,12 @@ def stage_sweep(config: StudyConfig, paths: StudyPaths, render_key: str, maps: d
                     shutil.copytree(paths.dataset / "stages", stages)
                 write_study_stages(config, stages, attacker_magnitude=magnitude, attacker_kinds=kinds,
                                    progress=progress)
-                for obj in load_index(dataset)["attacker_objects"]:
-                    render_sequence(stages / obj["stage"], dataset / "attackers" / obj["id"], config, "attacker",
-                                    progress=progress)
+                jobs = [SequenceJob(stages / obj["stage"], dataset / "attackers" / obj["id"], "attacker")
+                        for obj in load_index(dataset)["attacker_objects"]]
+                render_sequences(jobs, config, executor, progress)
                 mark_done(dataset, key)
             logs = stage_queries(config, paths, maps, force, progress, server_url, attacker_dataset=dataset,
-                                 out_root=folder / "queries")
+                                 out_root=folder / "queries", executor=executor)
             rows += attack_rows(config, paths, logs, dataset, magnitude, kind)
     if rows:
         write_results(rows, paths.results, stem="sweep")
@@ -444,9 +513,20 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
 
 # -------------------------------------------------------------------------------------------- the study
 def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_url: str | None = None,
-              progress: bool = True, workers: int = 1) -> Path:
-    """Run or resume every stage of a study; returns the report's path."""
+              progress: bool = True, workers: int = 1, executor: str | Executor = "local",
+              address: str | None = None) -> Path:
+    """Run or resume every stage of a study; returns the report's path.
+
+    Rendering, maps and queries run over ``executor``: ``"local"`` with ``workers`` processes, ``"ray"``
+    (``address``: a running cluster, e.g. ``"auto"``; None starts a local Ray), or an
+    :class:`~synthleak.executors.Executor`. Result files are the same bytes whatever the executor."""
     import time
+
+    from synthleak.executors import make_executor
+
+    if isinstance(executor, str):
+        with make_executor(executor, workers, address) as pool:
+            return run_study(config, out, force, server_url, progress, workers, pool)
 
     forced = _check_force(force)
     paths = StudyPaths(Path(out))
@@ -459,11 +539,12 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
         timings[name] = round(time.perf_counter() - start, 2)
         return value
 
-    render_key = timed("render", stage_render, config, paths, forced, progress)
-    maps = timed("maps", stage_maps, config, paths, render_key, forced, progress)
-    logs = timed("queries", stage_queries, config, paths, maps, forced, progress, server_url)
+    render_key = timed("render", stage_render, config, paths, forced, progress, executor)
+    maps = timed("maps", stage_maps, config, paths, render_key, forced, progress, executor)
+    logs = timed("queries", stage_queries, config, paths, maps, forced, progress, server_url, executor=executor)
     rows = timed("attack", stage_attack, config, paths, logs, forced)
-    sweep_rows = timed("sweep", stage_sweep, config, paths, render_key, maps, forced, progress, server_url)
+    sweep_rows = timed("sweep", stage_sweep, config, paths, render_key, maps, forced, progress, server_url,
+                       executor)
     report = timed("report", stage_report, config, paths, rows, logs, timings, sweep_rows)
     write_text_atomic(paths.root / "timings.json", json.dumps(timings, indent=1))
     return report

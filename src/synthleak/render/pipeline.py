@@ -11,14 +11,16 @@ from __future__ import annotations
 
 import hashlib
 import json
-from contextlib import nullcontext
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from synthleak.config import StudyConfig, config_to_dict
+from synthleak.executors import Executor, LocalExecutor, chunks
 from synthleak.render.base import Camera, RenderScene
 from synthleak.render.bop_full import write_bop_extras
 from synthleak.render.dataset import (
@@ -102,17 +104,79 @@ def plan_poses(scene: RenderScene, config: StudyConfig, kind: str, name: str) ->
     raise ValueError(f"kind must be 'scene' or 'attacker', got {kind!r}")
 
 
-def render_scene_sequence(
-    scene: RenderScene,
-    out_dir: Path,
-    config: StudyConfig,
-    kind: str,
-    name: str | None = None,
-    progress: bool | Progress = True,
-) -> Path:
-    """Render one in-memory scene as a sequence folder (skipping complete frames), then its metadata."""
-    out_dir = Path(out_dir)
-    name = name or out_dir.name
+FRAMES_PER_TASK = 25
+"""Frames per render task: a worker prepares the renderer once per task (and reuses it for the next task
+of the same sequence), so tasks are long enough to amortise ``prepare`` and short enough to balance."""
+
+
+@dataclass
+class SequenceJob:
+    """One sequence to render: its stage (a USD path, or an in-memory scene) and where it goes."""
+
+    stage: Path | RenderScene
+    out_dir: Path
+    kind: str
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        self.out_dir = Path(self.out_dir)
+        self.name = self.name or self.out_dir.name
+
+    def scene(self) -> RenderScene:
+        return self.stage if isinstance(self.stage, RenderScene) else load_stage(self.stage)
+
+
+@dataclass
+class FrameTask:
+    """Frames ``indices`` (with their ``cam_from_world`` poses) of one sequence, for one worker."""
+
+    job: SequenceJob
+    config: StudyConfig
+    indices: list[int]
+    poses: list[np.ndarray]
+
+
+_WORKER_RENDERER: dict[str, Any] = {}
+"""The renderer prepared by the last task in this process (one scene at a time, to bound memory)."""
+
+
+def _prepared_renderer(job: SequenceJob, config: StudyConfig):
+    if isinstance(job.stage, RenderScene):
+        source: Any = id(job.stage)
+    else:  # a stage rewritten in place (forced re-staging) must be prepared again
+        stat = Path(job.stage).stat()
+        source = (str(job.stage), stat.st_mtime_ns, stat.st_size)
+    key = repr((source, config_to_dict(config)["render"]))
+    if _WORKER_RENDERER.get("key") != key:
+        _WORKER_RENDERER.clear()
+        renderer = get_renderer(config.render)
+        renderer.prepare(job.scene())
+        _WORKER_RENDERER.update(key=key, renderer=renderer)
+    return _WORKER_RENDERER["renderer"]
+
+
+def render_frame_task(task: FrameTask) -> int:
+    """Render and write frames of one sequence (a worker task; frame ``i`` is seeded by its index only,
+    so the bytes do not depend on which worker renders it or what it rendered before)."""
+    rc = task.config.render
+    camera = Camera.from_hfov(rc.width, rc.height, rc.hfov_deg)
+    renderer = _prepared_renderer(task.job, task.config)
+    for i, pose in zip(task.indices, task.poses, strict=True):
+        frame = renderer.render(camera, pose, derive_seed(task.config.seed, "render", task.job.name, i))
+        write_frame(task.job.out_dir, frame_name(i), frame)
+    return len(task.indices)
+
+
+def bop_extras_task(job: SequenceJob) -> str:
+    """``write_bop_extras`` of one finished sequence (a worker task)."""
+    write_bop_extras(job.out_dir, job.scene(), depth_scale=BOP_DEPTH_SCALE)
+    return job.name
+
+
+def plan_sequence(job: SequenceJob, config: StudyConfig, scene: RenderScene | None = None) -> list[FrameTask]:
+    """Write the sequence's plan (poses, cameras, objects, split) and return its frames still to render."""
+    scene = scene or job.scene()
+    out_dir, kind, name = job.out_dir, job.kind, job.name
     rc = config.render
     camera = Camera.from_hfov(rc.width, rc.height, rc.hfov_deg)
     poses = plan_poses(scene, config, kind, name)
@@ -136,27 +200,49 @@ def render_scene_sequence(
         split=make_split(frames, rc.query_every) if kind == "scene" else None,
     )
     todo = [i for i in range(len(frames)) if not frame_complete(out_dir, frames[i])]
-    if todo:
-        renderer = get_renderer(rc)
-        renderer.prepare(scene)
-        bar = progress if isinstance(progress, Progress) else _progress(bool(progress))
-        with bar if not isinstance(progress, Progress) else nullcontext():
-            task = bar.add_task(f"{kind} {name}", total=len(frames), completed=len(frames) - len(todo))
-            for i in todo:
-                frame = renderer.render(camera, poses[i], derive_seed(config.seed, "render", name, i))
-                write_frame(out_dir, frames[i], frame)
-                bar.advance(task)
-    if todo or not (out_dir / "bop" / "scene_gt_info.json").is_file():
-        write_bop_extras(out_dir, scene, depth_scale=BOP_DEPTH_SCALE)
-    return out_dir
+    return [FrameTask(job, config, idx, [poses[i] for i in idx]) for idx in chunks(todo, FRAMES_PER_TASK)]
+
+
+def render_sequences(
+    jobs: list[SequenceJob], config: StudyConfig, executor: Executor | None = None, progress: bool = True
+) -> list[Path]:
+    """Render every sequence of ``jobs`` (skipping complete frames), then their BOP extras.
+
+    Frames of all sequences are spread over ``executor``'s workers in chunks; the files are the same
+    bytes whatever the executor and its number of workers."""
+    executor = executor or LocalExecutor(1)
+    tasks: list[FrameTask] = []
+    for job in jobs:
+        tasks += plan_sequence(job, config)
+    executor.map(render_frame_task, tasks, "render frames", progress)
+    _WORKER_RENDERER.clear()  # the serial path renders in this process: free the last scene
+    started = {id(t.job) for t in tasks}
+    extras = [job for job in jobs if id(job) in started or not (job.out_dir / "bop" / "scene_gt_info.json").is_file()]
+    executor.map(bop_extras_task, extras, "BOP extras", progress)
+    return [job.out_dir for job in jobs]
+
+
+def render_scene_sequence(
+    scene: RenderScene,
+    out_dir: Path,
+    config: StudyConfig,
+    kind: str,
+    name: str | None = None,
+    progress: bool | Progress = True,
+    executor: Executor | None = None,
+) -> Path:
+    """Render one in-memory scene as a sequence folder (skipping complete frames), then its metadata."""
+    job = SequenceJob(scene, Path(out_dir), kind, name or Path(out_dir).name)
+    return render_sequences([job], config, executor, progress=bool(progress))[0]
 
 
 def render_sequence(
-    scene_path: Path, out_dir: Path, config: StudyConfig, kind: str, progress: bool | Progress = True
+    scene_path: Path, out_dir: Path, config: StudyConfig, kind: str, progress: bool | Progress = True,
+    executor: Executor | None = None,
 ) -> Path:
     """Render the stage at ``scene_path`` into ``out_dir`` (``kind``: ``scene`` or ``attacker``)."""
-    scene = load_stage(scene_path)
-    return render_scene_sequence(scene, out_dir, config, kind, Path(out_dir).name, progress)
+    job = SequenceJob(Path(scene_path), Path(out_dir), kind)
+    return render_sequences([job], config, executor, progress=bool(progress))[0]
 
 
 def _read_index(stages_dir: Path) -> dict[str, Any]:
@@ -181,7 +267,8 @@ def _read_index(stages_dir: Path) -> dict[str, Any]:
     return index
 
 
-def render_stages(config: StudyConfig, stages_dir: Path, out_dir: Path, progress: bool = True) -> Path:
+def render_stages(config: StudyConfig, stages_dir: Path, out_dir: Path, progress: bool = True,
+                  executor: Executor | None = None) -> Path:
     """Render every room (``out_dir/scenes/<room>``) and attacker object (``out_dir/attackers/<id>``) of
     ``stages_dir/index.json``, then write ``out_dir/manifest.json``."""
     stages_dir, out_dir = Path(stages_dir), Path(out_dir)
@@ -191,21 +278,19 @@ def render_stages(config: StudyConfig, stages_dir: Path, out_dir: Path, progress
     missing = [str(stage) for stage, _, _ in jobs if not stage.is_file()]
     if missing:
         raise StageError(f"{stages_dir / 'index.json'}: stage files do not exist: {', '.join(missing)}")
-    with _progress(progress) as bar:
-        for stage, seq_dir, kind in jobs:
-            render_sequence(stage, seq_dir, config, kind, progress=bar)
+    render_sequences([SequenceJob(stage, seq_dir, kind) for stage, seq_dir, kind in jobs], config, executor, progress)
     write_manifest(out_dir, config)
     return out_dir
 
 
-def generate(config: StudyConfig, out_dir: Path, progress: bool = True) -> Path:
+def generate(config: StudyConfig, out_dir: Path, progress: bool = True, executor: Executor | None = None) -> Path:
     """Stages (``out_dir/stages``) and their renders in one go; resumable."""
     from synthleak.scene.generate import write_study_stages
 
     out_dir = Path(out_dir)
     written = Path(write_study_stages(config, out_dir / "stages", progress=progress))
     stages_dir = written.parent if written.is_file() else written  # index.json path or its folder
-    return render_stages(config, stages_dir, out_dir, progress)
+    return render_stages(config, stages_dir, out_dir, progress, executor)
 
 
 def _versions() -> dict[str, str | None]:

@@ -1,0 +1,188 @@
+"""Wall time, CPU time and peak memory per stage of a whole study (``synthleak study`` end to end).
+
+    python benchmarks/study.py ci-tiny --out /tmp/bench-ci-tiny                      # cold run, serial
+    python benchmarks/study.py study-small-pyrender --out /tmp/b --workers 2 --fresh
+    python benchmarks/study.py ci-tiny --out /tmp/b --workers 2 --executor ray      # local Ray
+
+Prints one table (format kept stable so runs can be compared in notes)::
+
+    stage        wall_s    cpu_s  peak_rss_mib
+    stages          ...
+
+``stages`` (USD stage writing) and ``render`` (frames + BOP extras + manifest) split the study's render
+stage; ``maps`` is feature extraction + matching + triangulation of every (tier, room) map; ``queries``
+the localization queries; ``attack`` alignment (Alg. 1 / robust) and scoring; ``sweep`` the
+variant-magnitude sweep (renders, queries and attack of the swept attackers); ``report`` tables and
+plots. ``cpu_s`` is this process plus its finished child processes (process-pool workers are reaped at
+the end of each stage; Ray workers are not children and are not counted). ``peak_rss_mib`` is the
+largest sum of resident memory over this process and all its descendants, sampled every 0.1 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+import os
+import resource
+import shutil
+import threading
+import time
+from pathlib import Path
+
+ROWS = ("stages", "render", "maps", "queries", "attack", "sweep", "report")
+
+
+def _tree_rss_bytes(root: int) -> int:
+    """Resident memory of ``root`` and all its descendants (Linux /proc)."""
+    children: dict[int, list[int]] = {}
+    rss: dict[int, int] = {}
+    page = os.sysconf("SC_PAGE_SIZE")
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry.name}/stat") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        pid = int(entry.name)
+        children.setdefault(int(fields[1]), []).append(pid)  # fields[1]: ppid
+        rss[pid] = int(fields[21]) * page  # fields[21]: rss in pages
+    total, todo = 0, [root]
+    while todo:
+        pid = todo.pop()
+        total += rss.get(pid, 0)
+        todo += children.get(pid, [])
+    return total
+
+
+class MemorySampler:
+    """Background sampler of the process tree's resident memory; ``take_peak()`` returns and resets."""
+
+    def __init__(self, interval_s: float = 0.1) -> None:
+        self.interval_s, self._peak, self._overall = interval_s, 0, 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            value = _tree_rss_bytes(os.getpid())
+            self._peak, self._overall = max(self._peak, value), max(self._overall, value)
+            self._stop.wait(self.interval_s)
+
+    def __enter__(self) -> MemorySampler:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def take_peak(self) -> int:
+        value = max(self._peak, _tree_rss_bytes(os.getpid()))
+        self._peak = 0
+        return value
+
+    @property
+    def overall(self) -> int:
+        return self._overall
+
+
+class StageTimer:
+    """Accumulates wall, CPU (self + reaped children) and peak memory per named row."""
+
+    def __init__(self, sampler: MemorySampler) -> None:
+        self.sampler = sampler
+        self.rows: dict[str, dict[str, float]] = {}
+        self._stack: list[str] = []
+
+    @staticmethod
+    def _cpu() -> float:
+        kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return time.process_time() + kids.ru_utime + kids.ru_stime
+
+    def wrap(self, name: str, fn):
+        timer = self
+
+        def wrapped(*args, **kwargs):
+            if timer._stack:  # nested inside another timed row (e.g. sweep renders): count it there only
+                return fn(*args, **kwargs)
+            timer._stack.append(name)
+            timer.sampler.take_peak()
+            wall, cpu = time.perf_counter(), timer._cpu()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                row = timer.rows.setdefault(name, {"wall_s": 0.0, "cpu_s": 0.0, "peak_rss_mib": 0.0})
+                row["wall_s"] += time.perf_counter() - wall
+                row["cpu_s"] += timer._cpu() - cpu
+                row["peak_rss_mib"] = max(row["peak_rss_mib"], timer.sampler.take_peak() / 2**20)
+                timer._stack.pop()
+
+        return wrapped
+
+
+def instrument(timer: StageTimer) -> None:
+    """Wrap the study's stage functions (module attributes looked up at call time)."""
+    import synthleak.render.pipeline as pipeline
+    import synthleak.scene.generate as generate
+    import synthleak.study as study
+
+    generate.write_study_stages = timer.wrap("stages", generate.write_study_stages)
+    pipeline.render_stages = timer.wrap("render", pipeline.render_stages)
+    for row, attr in (("maps", "stage_maps"), ("queries", "stage_queries"), ("attack", "stage_attack"),
+                      ("sweep", "stage_sweep"), ("report", "stage_report")):
+        setattr(study, attr, timer.wrap(row, getattr(study, attr)))
+
+
+def format_table(rows: dict[str, dict[str, float]], total: dict[str, float]) -> str:
+    lines = [f"{'stage':<10} {'wall_s':>9} {'cpu_s':>9} {'peak_rss_mib':>13}"]
+    for name in ROWS:
+        r = rows.get(name, {"wall_s": 0.0, "cpu_s": 0.0, "peak_rss_mib": 0.0})
+        lines.append(f"{name:<10} {r['wall_s']:>9.1f} {r['cpu_s']:>9.1f} {r['peak_rss_mib']:>13.0f}")
+    lines.append(f"{'total':<10} {total['wall_s']:>9.1f} {total['cpu_s']:>9.1f} {total['peak_rss_mib']:>13.0f}")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("config", help="study config name or path (e.g. ci-tiny, study-small-pyrender)")
+    parser.add_argument("--out", required=True, type=Path, help="study output folder")
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--executor", default="local", choices=("local", "ray"))
+    parser.add_argument("--address", default=None, help="Ray address (default: start a local Ray)")
+    parser.add_argument("--fresh", action="store_true", help="delete --out first (a cold run)")
+    parser.add_argument("--force", nargs="*", default=[], help="stages to redo")
+    parser.add_argument("--json", type=Path, help="also write the figures as JSON here")
+    args = parser.parse_args()
+
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    from synthleak.config import load_config
+    from synthleak.study import run_study
+
+    if args.fresh and args.out.exists():
+        shutil.rmtree(args.out)
+    config = load_config(args.config)
+    kwargs = {"force": args.force, "progress": False, "workers": args.workers}
+    if "executor" in inspect.signature(run_study).parameters:  # older run_study had no executors
+        kwargs |= {"executor": args.executor, "address": args.address}
+    elif args.executor != "local":
+        raise SystemExit("this synthleak has no --executor support")
+    with MemorySampler() as sampler:
+        timer = StageTimer(sampler)
+        instrument(timer)
+        wall, cpu = time.perf_counter(), timer._cpu()
+        run_study(config, args.out, **kwargs)
+        total = {"wall_s": time.perf_counter() - wall, "cpu_s": timer._cpu() - cpu,
+                 "peak_rss_mib": max(sampler.overall, sampler.take_peak()) / 2**20}
+    print(f"# benchmarks/study.py {config.name} workers={args.workers} executor={args.executor} "
+          f"cpus={os.cpu_count()}")
+    print(format_table(timer.rows, total))
+    if args.json:
+        args.json.write_text(json.dumps({"config": config.name, "workers": args.workers, "executor": args.executor,
+                                         "rows": timer.rows, "total": total}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

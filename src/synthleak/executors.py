@@ -1,0 +1,196 @@
+"""Where a study's independent tasks run: in this process, in a local process pool, or on a Ray cluster.
+
+Every executor's :meth:`Executor.map` returns the results **in input order**, whatever order the tasks
+finish in, so a study's outputs do not depend on the executor or the number of workers (each task is
+seeded by what it computes, never by when or where it runs). Tasks must be picklable module-level
+functions with picklable arguments; they read their inputs from, and may write their outputs to, the
+study folder, which is therefore shared by every worker (a local disk for local workers, a shared file
+system mounted at the same path on every node for a Ray cluster: see ``docs/scaling.md``).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from typing import Any, TypeVar
+
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+EXECUTORS = ("local", "ray")
+START_METHOD = "spawn"
+"""Process start method of local pools: ``spawn`` (fork after mitsuba/EGL/pycolmap threads started is
+unsafe; spawn costs ~1-2 s of imports per worker, once per pool)."""
+
+
+class ExecutorError(RuntimeError):
+    """A task that failed in a worker; the message names the task."""
+
+
+def _bar(enabled: bool) -> Progress:
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    disable=not enabled)
+
+
+class Executor:
+    """Runs ``fn(item)`` for every item; results in input order."""
+
+    workers: int = 1
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T], description: str = "tasks",
+            progress: bool = False) -> list[R]:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release workers (a no-op where there are none)."""
+
+    def __enter__(self) -> Executor:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def _describe(fn: Callable, item: Any) -> str:
+    text = repr(item)
+    return f"{getattr(fn, '__name__', fn)}({text[:200]}{'...' if len(text) > 200 else ''})"
+
+
+class LocalExecutor(Executor):
+    """``workers`` processes on this machine (``workers <= 1``: serially in this process, no pool).
+
+    The pool is started on first use and kept for the executor's life (``close()`` or ``with``)."""
+
+    def __init__(self, workers: int = 1, start_method: str = START_METHOD) -> None:
+        if int(workers) < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        self.workers = int(workers)
+        self.start_method = start_method
+        self._pool: ProcessPoolExecutor | None = None
+
+    def _get_pool(self) -> ProcessPoolExecutor:
+        if self._pool is None:
+            ctx = multiprocessing.get_context(self.start_method)
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx)
+        return self._pool
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T], description: str = "tasks",
+            progress: bool = False) -> list[R]:
+        items = list(items)
+        results: list[Any] = [None] * len(items)
+        with _bar(progress and bool(items)) as bar:
+            task = bar.add_task(description, total=len(items))
+            if self.workers <= 1 or len(items) <= 1:
+                for i, item in enumerate(items):
+                    results[i] = fn(item)
+                    bar.advance(task)
+                return results
+            pool = self._get_pool()
+            futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
+            pending = set(futures)
+            try:
+                while pending:
+                    done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                    for future in done:
+                        i = futures[future]
+                        try:
+                            results[i] = future.result()
+                        except Exception as exc:
+                            raise ExecutorError(f"task {_describe(fn, items[i])} failed: "
+                                                f"{type(exc).__name__}: {exc}") from exc
+                        bar.advance(task)
+            except BaseException:
+                for future in pending:
+                    future.cancel()
+                raise
+        return results
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+
+class RayExecutor(Executor):
+    """Tasks as Ray remote functions (``pip install -e .[ray]``).
+
+    ``address``: ``"auto"`` (or ``ray://...`` / ``host:port``) joins a running cluster; None starts a
+    local Ray on this machine with ``workers`` CPUs (the default: all). The study folder must be the
+    same path on every node."""
+
+    def __init__(self, address: str | None = None, workers: int | None = None, num_cpus_per_task: float = 1) -> None:
+        try:
+            import ray
+        except ImportError as exc:
+            raise ImportError("the ray executor needs Ray: pip install -e '.[ray]' (or pip install 'ray[default]')"
+                              ) from exc
+        self._ray = ray
+        self._started = False
+        if not ray.is_initialized():
+            kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": True}
+            if address:
+                kwargs["address"] = address
+            else:
+                kwargs["num_cpus"] = workers or os.cpu_count() or 1
+            # workers import synthleak from the driver's environment; pass the driver's egl choice along
+            env = {k: os.environ[k] for k in ("PYOPENGL_PLATFORM",) if k in os.environ}
+            if env:
+                kwargs["runtime_env"] = {"env_vars": env}
+            ray.init(**kwargs)
+            self._started = True
+        self.workers = int(ray.cluster_resources().get("CPU", 1))
+        self.num_cpus_per_task = num_cpus_per_task
+        self._remote: dict[Callable, Any] = {}
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T], description: str = "tasks",
+            progress: bool = False) -> list[R]:
+        ray = self._ray
+        items = list(items)
+        remote = self._remote.get(fn)
+        if remote is None:
+            remote = self._remote[fn] = ray.remote(num_cpus=self.num_cpus_per_task, max_retries=1)(fn)
+        refs = [remote.remote(item) for item in items]
+        index = {ref: i for i, ref in enumerate(refs)}
+        results: list[Any] = [None] * len(items)
+        pending = list(refs)
+        with _bar(progress and bool(items)) as bar:
+            task = bar.add_task(description, total=len(items))
+            while pending:
+                done, pending = ray.wait(pending, num_returns=1)
+                for ref in done:
+                    i = index[ref]
+                    try:
+                        results[i] = ray.get(ref)
+                    except Exception as exc:
+                        for other in pending:
+                            ray.cancel(other)
+                        raise ExecutorError(f"task {_describe(fn, items[i])} failed on Ray: "
+                                            f"{type(exc).__name__}: {exc}") from exc
+                    bar.advance(task)
+        return results
+
+    def close(self) -> None:
+        if self._started:
+            self._ray.shutdown()
+            self._started = False
+
+
+def make_executor(kind: str = "local", workers: int = 1, address: str | None = None) -> Executor:
+    """``local`` (``workers`` processes) or ``ray`` (``address``: None starts a local Ray)."""
+    if kind == "local":
+        if address:
+            raise ValueError("--address only applies to --executor ray")
+        return LocalExecutor(workers)
+    if kind == "ray":
+        return RayExecutor(address, workers if workers > 1 else None)
+    raise ValueError(f"executor: unknown kind {kind!r} (known: {', '.join(EXECUTORS)})")
+
+
+def chunks(items: Sequence[T], size: int) -> list[list[T]]:
+    """Consecutive runs of at most ``size`` items (the task granularity of frames and queries)."""
+    size = max(1, int(size))
+    return [list(items[i:i + size]) for i in range(0, len(items), size)]

@@ -1,0 +1,99 @@
+"""Stage caching of `synthleak study`: a rerun does no work, a threshold change re-runs only the attack, a new
+tier builds only its own maps and never re-renders. Work is counted by wrapping the functions that do it."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+from synthleak.config import StudyConfig, load_config
+from synthleak.study import run_study
+
+
+@pytest.fixture()
+def counted(monkeypatch: pytest.MonkeyPatch) -> Counter:
+    """Counts renderer creations, frames rendered, maps built and queries localized (serial runs)."""
+    import synthleak.localize.localizer as localizer
+    import synthleak.localize.mapping as mapping
+    import synthleak.render.pipeline as pipeline
+
+    calls: Counter = Counter()
+
+    def counting(name, fn):
+        def wrapper(*args, **kwargs):
+            calls[name] += 1
+            return fn(*args, **kwargs)
+        return wrapper
+
+    monkeypatch.setattr(pipeline, "get_renderer", counting("renderer", pipeline.get_renderer))
+    monkeypatch.setattr(pipeline, "render_frame_task", counting("frame_tasks", pipeline.render_frame_task))
+    monkeypatch.setattr(pipeline, "write_frame", counting("frames", pipeline.write_frame))
+    monkeypatch.setattr(mapping, "build_map", counting("maps", mapping.build_map))
+    monkeypatch.setattr(localizer.Localizer, "localize", counting("queries", localizer.Localizer.localize))
+    return calls
+
+
+def _copy(ci_tiny_study: Path, tmp_path: Path) -> Path:
+    study = tmp_path / "study"
+    shutil.copytree(ci_tiny_study, study)
+    return study
+
+
+def _markers(study: Path) -> dict[str, str]:
+    return {str(p.relative_to(study)): p.read_text() for p in sorted(study.rglob(".done.json"))}
+
+
+def test_rerun_is_a_cache_hit(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:
+    study = _copy(ci_tiny_study, tmp_path)
+    before = _markers(study)
+    run_study(load_config("ci-tiny"), study, progress=False)
+    assert dict(counted) == {}
+    assert _markers(study) == before
+
+
+def test_threshold_change_reuses_every_cached_stage(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:
+    study = _copy(ci_tiny_study, tmp_path)
+    config = load_config("ci-tiny")
+    thresholds = [(15.0, 0.3), (45.0, 1.0)]
+    changed = dataclasses.replace(config, attack=dataclasses.replace(config.attack, thresholds=thresholds))
+    before = _markers(study)
+    run_study(changed, study, progress=False)
+    assert dict(counted) == {}  # no renderer, frame, map or query
+    after = _markers(study)
+    assert {k for k in after if after[k] != before.get(k)} == {"results/.done.json"}
+    rows = json.loads((study / "results" / "results.json").read_text())
+    rows = rows["rows"] if isinstance(rows, dict) else rows
+    assert {(r["delta_r_deg"], r["delta_t_m"]) for r in rows} == set(thresholds)
+
+
+def test_new_tier_builds_only_its_maps(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:
+    study = _copy(ci_tiny_study, tmp_path)
+    config: StudyConfig = load_config("ci-tiny")
+    changed = dataclasses.replace(config, localize=dataclasses.replace(config.localize, tiers=["sift", "orb"]))
+    before = _markers(study)
+    run_study(changed, study, progress=False)
+    assert counted["renderer"] == counted["frames"] == 0
+    assert counted["maps"] == 2  # orb maps of the two rooms; the sift maps are reused
+    after = _markers(study)
+    assert all(after[k] == v for k, v in before.items() if k.startswith(("dataset", "maps/sift", "queries/sift")))
+
+
+def test_force_render_redoes_only_missing_frames(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:
+    study = _copy(ci_tiny_study, tmp_path)
+    victim = sorted(study.glob("dataset/scenes/*/images/*.png"))[3]
+    victim_bytes = victim.read_bytes()
+    victim.unlink()
+    run_study(load_config("ci-tiny"), study, force=["render"], progress=False)
+    assert counted["frames"] == 1 and counted["renderer"] == 1
+    assert counted["maps"] == counted["queries"] == 0  # the renders' key did not change
+    assert victim.read_bytes() == victim_bytes
+
+
+def test_unknown_force_stage(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="unknown stage"):
+        run_study(load_config("ci-tiny"), tmp_path, force=["frames"], progress=False)
