@@ -71,16 +71,25 @@ def _cmd_show(args: argparse.Namespace) -> None:
     print(f"wrote {out}")
 
 
-def _localize_config(config_name: str | None):
-    from synthleak.config import LocalizeConfig, load_config
+def _study_config(config_name: str | None):
+    from synthleak.config import StudyConfig, load_config
 
-    return load_config(config_name).localize if config_name else LocalizeConfig()
+    return load_config(config_name) if config_name else StudyConfig(name="default")
+
+
+def _defense(args: argparse.Namespace):
+    from synthleak.localize.defense import DefensePolicy
+
+    defense = _study_config(args.config).defense
+    if args.defense:
+        return DefensePolicy(min_fraction=defense.min_fraction, min_instances=defense.min_instances, enabled=True)
+    return DefensePolicy.from_config(defense)
 
 
 def _cmd_map(args: argparse.Namespace) -> None:
     from synthleak.localize.mapping import build_map
 
-    out = build_map(Path(args.scene), args.tier, Path(args.out), _localize_config(args.config),
+    out = build_map(Path(args.scene), args.tier, Path(args.out), _study_config(args.config).localize,
                     progress=not args.quiet)
     print(f"map written to {out}")
 
@@ -88,17 +97,20 @@ def _cmd_map(args: argparse.Namespace) -> None:
 def _cmd_serve(args: argparse.Namespace) -> None:
     from synthleak.localize.server import serve
 
-    serve(Path(args.map), host=args.host, port=args.port, config=_localize_config(args.config))
+    serve(Path(args.map), host=args.host, port=args.port, config=_study_config(args.config).localize,
+          defense=_defense(args), decision_log=Path(args.decision_log) if args.decision_log else None)
 
 
 def _cmd_localize(args: argparse.Namespace) -> None:
     from synthleak.localize.localizer import Localizer
-    from synthleak.localize.results import result_to_response
+    from synthleak.localize.server import response_from_result
 
-    localizer = Localizer.load(Path(args.map), _localize_config(args.config))
+    localizer = Localizer.load(Path(args.map), _study_config(args.config).localize, defense=_defense(args))
     for image in args.images:
-        response = result_to_response(localizer.localize(Path(image).read_bytes()))
-        print(json.dumps({"image": image, **response}))
+        result = localizer.localize(Path(image).read_bytes())
+        extra = {"num_inliers": result.num_inliers,
+                 "inlier_instance_counts": {str(k): v for k, v in sorted(result.inlier_instance_counts.items())}}
+        print(json.dumps({"image": image, **response_from_result(result), **(extra if args.verbose else {})}))
 
 
 def _cmd_study(args: argparse.Namespace) -> None:
@@ -168,12 +180,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("map")
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8000)
-    p.add_argument("--config")
+    p.add_argument("--config", help="study config whose [localize] and [defense] sections to use")
+    p.add_argument("--defense", action="store_true", help="turn the query defense on (X, k from the config)")
+    p.add_argument("--decision-log", help="JSONL file logging every defense decision with its counts")
 
     p = command("localize", _cmd_localize, "localize images against a map (prints one JSON line each)")
     p.add_argument("map")
     p.add_argument("images", nargs="+")
-    p.add_argument("--config")
+    p.add_argument("--config", help="study config whose [localize] and [defense] sections to use")
+    p.add_argument("--defense", action="store_true", help="turn the query defense on (X, k from the config)")
+    p.add_argument("--verbose", action="store_true", help="also print inlier counts (server-side information)")
 
     p = command("study", _cmd_study, "run (or resume) a whole study: stages, renders, maps, attack, report")
     p.add_argument("config")

@@ -7,10 +7,15 @@
     synthleak.localize.client.HttpLocalizer(url).localize(...)         # same interface over HTTP
 """
 
+import pycolmap as _pycolmap
+
 from synthleak.localize.defense import DefenseDecision, DefensePolicy, decide
 from synthleak.localize.localizer import LocalizationResult, Localizer
 from synthleak.localize.mapping import build_map
 from synthleak.localize.tiers import TIERS, Tier, get_tier
+
+# COLMAP logs an INFO line per feature extractor it creates (one per query): keep warnings and errors only.
+_pycolmap.logging.minloglevel = max(int(_pycolmap.logging.minloglevel), int(_pycolmap.logging.WARNING))
 
 __all__ = [
     "TIERS",

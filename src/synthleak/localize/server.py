@@ -24,7 +24,7 @@ from starlette.concurrency import run_in_threadpool
 from synthleak.config import LocalizeConfig
 from synthleak.geometry.poses import quat_wxyz_from_matrix
 from synthleak.localize.defense import DefensePolicy
-from synthleak.localize.localizer import InvalidImageError, Localizer
+from synthleak.localize.localizer import InvalidImageError, LocalizationResult, Localizer
 from synthleak.render.base import Camera
 
 MAX_UPLOAD_BYTES = 100 * 1024 * 1024
@@ -123,14 +123,19 @@ def create_app(localizer: Localizer, max_upload_bytes: int = MAX_UPLOAD_BYTES) -
             result = await run_in_threadpool(run, data, camera)
         except InvalidImageError as exc:
             raise HTTPException(400, str(exc)) from exc
-        if not result.success or result.cam_from_world is None:
-            return {"success": False}
-        pose = result.cam_from_world
-        return {"success": True, "cam_from_world": {
-            "rotation": [float(x) for x in quat_wxyz_from_matrix(pose[:3, :3])],
-            "translation": [float(x) for x in pose[:3, 3]]}}
+        return response_from_result(result)
 
     return app
+
+
+def response_from_result(result: LocalizationResult) -> dict:
+    """The service's whole answer: the pose (quaternion [qw, qx, qy, qz] + translation) or failure."""
+    if not result.success or result.cam_from_world is None:
+        return {"success": False}
+    pose = result.cam_from_world
+    return {"success": True, "cam_from_world": {
+        "rotation": [float(x) for x in quat_wxyz_from_matrix(pose[:3, :3])],
+        "translation": [float(x) for x in pose[:3, 3]]}}
 
 
 def serve(
