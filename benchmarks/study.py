@@ -10,12 +10,14 @@ Prints one table (format kept stable so runs can be compared in notes)::
     stages          ...
 
 ``stages`` (USD stage writing) and ``render`` (frames + BOP extras + manifest) split the study's render
-stage; ``maps`` is feature extraction + matching + triangulation of every (tier, room) map; ``queries``
-the localization queries; ``attack`` alignment (Alg. 1 / robust) and scoring; ``sweep`` the
-variant-magnitude sweep (renders, queries and attack of the swept attackers); ``report`` tables and
-plots. ``cpu_s`` is this process plus its finished child processes (process-pool workers are reaped at
-the end of each stage; Ray workers are not children and are not counted). ``peak_rss_mib`` is the
-largest sum of resident memory over this process and all its descendants, sampled every 0.1 s.
+stage; ``maps`` is feature extraction + matching + triangulation of every (tier, room) map; ``features``
+the query images' features (once per tier; absent in older synthleak, where ``queries`` includes them);
+``queries`` the localization queries (retrieval, matching, PnP); ``attack`` alignment (Alg. 1 / robust)
+and scoring; ``sweep`` the variant-magnitude sweep (renders, queries and attack of the swept attackers);
+``report`` tables and plots. ``cpu_s`` is user + system time of this process and all its descendants, live
+(read from /proc) or finished (Ray workers are not descendants of the driver and are not counted).
+``peak_rss_mib`` is the largest sum of resident memory over this process and all its descendants,
+sampled every 0.1 s.
 """
 
 from __future__ import annotations
@@ -30,13 +32,15 @@ import threading
 import time
 from pathlib import Path
 
-ROWS = ("stages", "render", "maps", "queries", "attack", "sweep", "report")
+ROWS = ("stages", "render", "maps", "features", "queries", "attack", "sweep", "report")
 
 
-def _tree_rss_bytes(root: int) -> int:
-    """Resident memory of ``root`` and all its descendants (Linux /proc)."""
+def _tree_stats(root: int) -> tuple[int, float]:
+    """(resident bytes, CPU seconds) of ``root`` and all its live descendants (Linux /proc)."""
     children: dict[int, list[int]] = {}
     rss: dict[int, int] = {}
+    cpu: dict[int, float] = {}
+    tick = os.sysconf("SC_CLK_TCK")
     page = os.sysconf("SC_PAGE_SIZE")
     for entry in os.scandir("/proc"):
         if not entry.name.isdigit():
@@ -49,12 +53,19 @@ def _tree_rss_bytes(root: int) -> int:
         pid = int(entry.name)
         children.setdefault(int(fields[1]), []).append(pid)  # fields[1]: ppid
         rss[pid] = int(fields[21]) * page  # fields[21]: rss in pages
-    total, todo = 0, [root]
+        cpu[pid] = (int(fields[11]) + int(fields[12])) / tick  # utime, stime
+    total, seconds, todo = 0, 0.0, [root]
     while todo:
         pid = todo.pop()
         total += rss.get(pid, 0)
+        if pid != root:
+            seconds += cpu.get(pid, 0.0)
         todo += children.get(pid, [])
-    return total
+    return total, seconds
+
+
+def _tree_rss_bytes(root: int) -> int:
+    return _tree_stats(root)[0]
 
 
 class MemorySampler:
@@ -99,8 +110,8 @@ class StageTimer:
 
     @staticmethod
     def _cpu() -> float:
-        kids = resource.getrusage(resource.RUSAGE_CHILDREN)
-        return time.process_time() + kids.ru_utime + kids.ru_stime
+        kids = resource.getrusage(resource.RUSAGE_CHILDREN)  # finished (reaped) descendants
+        return time.process_time() + kids.ru_utime + kids.ru_stime + _tree_stats(os.getpid())[1]
 
     def wrap(self, name: str, fn):
         timer = self
@@ -131,9 +142,10 @@ def instrument(timer: StageTimer) -> None:
 
     generate.write_study_stages = timer.wrap("stages", generate.write_study_stages)
     pipeline.render_stages = timer.wrap("render", pipeline.render_stages)
-    for row, attr in (("maps", "stage_maps"), ("queries", "stage_queries"), ("attack", "stage_attack"),
-                      ("sweep", "stage_sweep"), ("report", "stage_report")):
-        setattr(study, attr, timer.wrap(row, getattr(study, attr)))
+    for row, attr in (("maps", "stage_maps"), ("features", "stage_features"), ("queries", "stage_queries"),
+                      ("attack", "stage_attack"), ("sweep", "stage_sweep"), ("report", "stage_report")):
+        if hasattr(study, attr):  # older synthleak had no features stage
+            setattr(study, attr, timer.wrap(row, getattr(study, attr)))
 
 
 def format_table(rows: dict[str, dict[str, float]], total: dict[str, float]) -> str:

@@ -118,7 +118,8 @@ def _cmd_study(args: argparse.Namespace) -> None:
     from synthleak.study import run_study
 
     report = run_study(load_config(args.config), Path(args.out), force=args.force or [],
-                       server_url=args.server, progress=not args.quiet, workers=args.workers)
+                       server_url=args.server, progress=not args.quiet, workers=args.workers,
+                       executor=args.executor, address=args.address)
     print(f"report written to {report}")
 
 
@@ -198,6 +199,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="redo a stage: stages, render, maps, queries, attack, report (repeatable)")
     p.add_argument("--server", help="attack a running HTTP server instead of in-process localizers")
     p.add_argument("--workers", type=int, default=1, help="worker processes for rendering and queries")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="where frames, maps and queries run: local processes or Ray tasks (pip install -e .[ray])")
+    p.add_argument("--address", default=None,
+                   help="Ray cluster to join (e.g. auto, ray://head:10001); default: start a local Ray")
     return parser
 
 

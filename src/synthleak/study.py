@@ -19,7 +19,7 @@ from synthleak.cache import cache_key, done_key, is_done, mark_done, write_text_
 from synthleak.config import StudyConfig, config_to_dict
 from synthleak.executors import Executor, LocalExecutor
 
-STAGES = ("render", "maps", "queries", "attack", "report")
+STAGES = ("render", "maps", "features", "queries", "attack", "report")
 
 
 @dataclass
@@ -143,17 +143,21 @@ def _query_plan(config: StudyConfig, scene_dataset: Path, attacker_dataset: Path
                  for f in scene.split["query"]]
     for obj in load_index(attacker_dataset)["attacker_objects"]:
         seq = load_sequence(attacker_dataset / "attackers" / obj["id"])
-        frames = seq.frames[: config.attack.queries_per_object or None]
+        frames = seq.frames
+        if 0 < config.attack.queries_per_object < len(frames):  # spread evenly around the orbit
+            step = len(frames) / config.attack.queries_per_object
+            frames = [frames[int(k * step)] for k in range(config.attack.queries_per_object)]
         plan += [{"sequence": f"attackers/{obj['id']}", "frame": f, "genuine": False,
                   "attacker_object": obj["id"]} for f in frames]
     return plan
 
 
 QUERIES_PER_TASK = 50
-"""Localization queries per worker task (a worker loads each map once and keeps it for its next tasks)."""
+"""Localization queries (or feature extractions) per worker task (a worker loads each map once and keeps it
+for its next tasks)."""
 
-_WORKER_LOCALIZER: dict[str, Any] = {}
-"""The localizer of the last map a task in this process used (one map at a time, to bound memory)."""
+_WORKER_CACHE: dict[str, Any] = {}
+"""The localizer (or extractor) the last task in this process used (one map at a time, to bound memory)."""
 
 
 def _make_localizer(map_dir: Path, config: StudyConfig | Any, server_url: str | None):
@@ -167,6 +171,117 @@ def _make_localizer(map_dir: Path, config: StudyConfig | Any, server_url: str | 
     return Localizer.load(map_dir, localize)
 
 
+def _worker_cached(key: str, make):
+    if _WORKER_CACHE.get("key") != key:
+        _WORKER_CACHE.clear()
+        _WORKER_CACHE.update(key=key, value=make())
+    return _WORKER_CACHE["value"]
+
+
+# --------------------------------------------------------------------------------------------- features
+def _features_path(root: Path, tier: str, item: dict[str, Any]) -> Path:
+    return root / tier / item["sequence"] / f"{item['frame']}.npz"
+
+
+def save_features(path: Path, features: Any, image_size: tuple[int, int]) -> None:
+    """One image's features as ``.npz`` (exact arrays), written atomically."""
+    import io
+    import os
+
+    buffer = io.BytesIO()
+    arrays = {"keypoints": features.keypoints, "descriptors": features.descriptors,
+              "binary": np.array(features.binary), "image_size": np.array(image_size, np.int64)}
+    if features.scores is not None:
+        arrays["scores"] = features.scores
+    np.savez(buffer, **arrays)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_bytes(buffer.getvalue())
+    os.replace(tmp, path)
+
+
+def load_features(path: Path) -> tuple[Any, tuple[int, int]]:
+    """``(Features, (width, height))`` of :func:`save_features`."""
+    from synthleak.localize.features import Features
+
+    with np.load(path) as z:
+        scores = z["scores"] if "scores" in z.files else None
+        return (Features(z["keypoints"], z["descriptors"], bool(z["binary"]), scores),
+                tuple(int(v) for v in z["image_size"]))
+
+
+@dataclass
+class FeatureTask:
+    """Extract one tier's features of consecutive query images (``(image, out)`` paths), for one worker."""
+
+    tier: str
+    max_keypoints: int
+    items: list[tuple[str, str]]
+
+
+def feature_task(task: FeatureTask) -> int:
+    """Extract and save the features of the task's images (a worker task; extraction is single threaded)."""
+    from synthleak.localize.localizer import decode_image
+    from synthleak.localize.tiers import get_tier
+
+    extractor = _worker_cached(repr(("extractor", task.tier, task.max_keypoints)),
+                               lambda: get_tier(task.tier).make_extractor(task.max_keypoints))
+    for image, out in task.items:
+        rgb = decode_image(Path(image).read_bytes())
+        save_features(Path(out), extractor(rgb), (rgb.shape[1], rgb.shape[0]))
+    return len(task.items)
+
+
+def _query_plans(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, str], Path],
+                 attacker_dataset: Path, genuine: bool) -> dict[str, list[dict]]:
+    """Each room's query plan, with ``_image`` (the image's path) and ``_camera`` (its intrinsics) added."""
+    from synthleak.render.dataset import load_sequence
+
+    sequences: dict[Path, Any] = {}
+    plans = {}
+    for room in sorted({room for _, room in maps}):
+        plan = _query_plan(config, paths.dataset, attacker_dataset, room, genuine)
+        for item in plan:
+            folder = (paths.dataset if item["genuine"] else attacker_dataset) / item["sequence"]
+            seq = sequences.get(folder) or sequences.setdefault(folder, load_sequence(folder))
+            item |= {"_image": str(seq.image_path(item["frame"])), "_camera": seq.camera}
+        plans[room] = plan
+    return plans
+
+
+def stage_features(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, str], Path], force: set[str],
+                   progress: bool, attacker_dataset: Path | None = None, out_root: Path | None = None,
+                   executor: Executor | None = None) -> Path:
+    """Every query image's features, once per tier (not once per room server it is sent to), cached under
+    ``features/<tier>/<sequence>/<frame>.npz``; returns the features root."""
+    from synthleak.executors import chunks
+
+    genuine = attacker_dataset is None
+    attacker_dataset = attacker_dataset or paths.dataset
+    root = (out_root or paths.queries).parent / "features"
+    plans: dict[str, list[dict]] | None = None
+    tasks, marks = [], []
+    for tier in sorted({tier for tier, _ in maps}):
+        key = cache_key("features", done_key(paths.dataset), done_key(attacker_dataset), genuine, tier,
+                        config.localize.max_keypoints, config.attack.queries_per_object)
+        if "features" not in force and is_done(root / tier, key):
+            continue
+        plans = plans or _query_plans(config, paths, maps, attacker_dataset, genuine)
+        seen: dict[str, tuple[str, str]] = {}
+        for plan in plans.values():
+            for item in plan:
+                seen.setdefault(item["_image"], (item["_image"], str(_features_path(root, tier, item))))
+        items = [seen[k] for k in sorted(seen)]
+        tasks += [FeatureTask(tier, config.localize.max_keypoints, c) for c in chunks(items, QUERIES_PER_TASK)]
+        marks.append((root / tier, key))
+    (executor or LocalExecutor(1)).map(feature_task, tasks, "features", progress)
+    _WORKER_CACHE.clear()
+    for folder, key in marks:
+        mark_done(folder, key)
+    return root
+
+
+# ---------------------------------------------------------------------------------------------- queries
 @dataclass
 class QueryTask:
     """Consecutive planned queries of one (tier, room) server, for one worker."""
@@ -177,24 +292,26 @@ class QueryTask:
     tier: str
     room: str
     items: list[dict[str, Any]]
-    """Plan entries plus ``_image`` (the image's path) and ``_camera`` (its intrinsics)."""
-
-
-def _cached_localizer(task: QueryTask):
-    key = repr((str(task.map_dir), done_key(task.map_dir), task.server_url, config_to_dict(task.localize)))
-    if _WORKER_LOCALIZER.get("key") != key:
-        _WORKER_LOCALIZER.clear()
-        _WORKER_LOCALIZER.update(key=key, localizer=_make_localizer(task.map_dir, task.localize, task.server_url))
-    return _WORKER_LOCALIZER["localizer"]
+    """Plan entries plus ``_camera`` (the intrinsics) and ``_image`` (the image's path; sent to a server) or
+    ``_features`` (its cached features; matched in process)."""
 
 
 def query_task(task: QueryTask) -> list[str]:
     """Localize each image of the task; one JSON line per query, in the task's order (a worker task)."""
-    localizer = _cached_localizer(task)
+    key = repr((str(task.map_dir), done_key(task.map_dir), task.server_url, config_to_dict(task.localize)))
+    localizer = _worker_cached(key, lambda: _make_localizer(task.map_dir, task.localize, task.server_url))
     lines = []
     for entry in task.items:
         item = {k: v for k, v in entry.items() if not k.startswith("_")}
-        result = localizer.localize(Path(entry["_image"]).read_bytes(), entry["_camera"])
+        camera = entry["_camera"]
+        if "_features" in entry:
+            features, size = load_features(Path(entry["_features"]))
+            if size != (camera.width, camera.height):
+                raise ValueError(f"{entry['_features']}: features of a {size[0]}x{size[1]} image but the camera "
+                                 f"is {camera.width}x{camera.height}")
+            result = localizer.localize_features(features, camera)
+        else:
+            result = localizer.localize(Path(entry["_image"]).read_bytes(), camera)
         pose = result.cam_from_world
         lines.append(json.dumps({
             **item, "tier": task.tier, "room": task.room, "success": bool(result.success),
@@ -212,10 +329,10 @@ def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, 
     """Send every planned image to each (tier, room) server; log one JSON line per query.
 
     By default the attacker images come from the study's dataset and genuine queries are included; a
-    variant sweep passes its own ``attacker_dataset`` and ``out_root`` (attacker queries only). Queries
-    run in chunks over ``executor``; each log is in plan order whatever the executor."""
+    variant sweep passes its own ``attacker_dataset`` and ``out_root`` (attacker queries only). In process,
+    each image's features are extracted once per tier (:func:`stage_features`) and matched against every
+    room's map; queries run in chunks over ``executor``; each log is in plan order whatever the executor."""
     from synthleak.executors import chunks
-    from synthleak.render.dataset import load_sequence
 
     genuine = attacker_dataset is None
     attacker_dataset = attacker_dataset or paths.dataset
@@ -223,7 +340,8 @@ def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, 
     logs: dict[tuple[str, str], Path] = {}
     todo: list[tuple[tuple[str, str], Path, str, int]] = []  # (tier, room), folder, key, number of tasks
     tasks: list[QueryTask] = []
-    sequences: dict[Path, Any] = {}
+    plans: dict[str, list[dict]] | None = None
+    features_root: Path | None = None
     for (tier, room), map_dir in maps.items():
         out = out_root / tier / room
         key = cache_key("queries", done_key(map_dir), done_key(attacker_dataset), genuine,
@@ -231,16 +349,20 @@ def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, 
         logs[(tier, room)] = out / "queries.jsonl"
         if "queries" not in force and is_done(out, key):
             continue
-        plan = _query_plan(config, paths.dataset, attacker_dataset, room, genuine)
-        for item in plan:
-            folder = (paths.dataset if item["genuine"] else attacker_dataset) / item["sequence"]
-            seq = sequences.get(folder) or sequences.setdefault(folder, load_sequence(folder))
-            item |= {"_image": str(seq.image_path(item["frame"])), "_camera": seq.camera}
+        plans = plans or _query_plans(config, paths, maps, attacker_dataset, genuine)
+        if server_url is None and features_root is None:
+            features_root = stage_features(config, paths, maps, force - {"features"}, progress,
+                                           None if genuine else attacker_dataset, out_root, executor)
+        plan = [dict(item) for item in plans[room]]
+        if features_root is not None:
+            for item in plan:
+                item["_features"] = str(_features_path(features_root, tier, item))
+                del item["_image"]
         parts = [QueryTask(map_dir, config.localize, server_url, tier, room, c) for c in chunks(plan, QUERIES_PER_TASK)]
         todo.append(((tier, room), out, key, len(parts)))
         tasks += parts
     results = iter((executor or LocalExecutor(1)).map(query_task, tasks, "queries", progress))
-    _WORKER_LOCALIZER.clear()
+    _WORKER_CACHE.clear()
     for name, out, key, n_tasks in todo:
         lines = [line for _ in range(n_tasks) for line in next(results)]
         write_text_atomic(logs[name], "\n".join(lines) + "\n")
@@ -283,13 +405,17 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
     index = load_index(attacker_dataset)
     rooms = {room["name"]: load_sequence(paths.dataset / "scenes" / room["name"]).objects_by_id()
              for room in load_index(paths.dataset)["rooms"]}
+    by_object: dict[tuple[str, str], dict[str, list[dict]]] = {}  # each log parsed once, not once per object
+    for name, log in logs.items():
+        for q in read_query_log(log):
+            by_object.setdefault(name, {}).setdefault(q["attacker_object"], []).append(q)
     rows: list[dict[str, Any]] = []
     for obj in index["attacker_objects"]:
         seq = load_sequence(attacker_dataset / "attackers" / obj["id"])
         local, object_from_local = _attacker_local_model(config, attacker_dataset.parent / "sfm", obj["id"], seq)
         target = seq.objects_by_id()[seq.target_instance_id]
-        for (tier, room), log in sorted(logs.items()):
-            records = [q for q in read_query_log(log) if q["attacker_object"] == obj["id"]]
+        for tier, room in sorted(logs):
+            records = by_object.get((tier, room), {}).get(obj["id"], [])
             sent = {q["frame"] for q in records}
             server = {q["frame"]: None if q["cam_from_world"] is None else np.array(q["cam_from_world"])
                       for q in records if q["success"]}
@@ -541,6 +667,8 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
 
     render_key = timed("render", stage_render, config, paths, forced, progress, executor)
     maps = timed("maps", stage_maps, config, paths, render_key, forced, progress, executor)
+    if server_url is None:
+        timed("features", stage_features, config, paths, maps, forced, progress, executor=executor)
     logs = timed("queries", stage_queries, config, paths, maps, forced, progress, server_url, executor=executor)
     rows = timed("attack", stage_attack, config, paths, logs, forced)
     sweep_rows = timed("sweep", stage_sweep, config, paths, render_key, maps, forced, progress, server_url,

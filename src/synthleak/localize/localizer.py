@@ -130,6 +130,15 @@ class Localizer:
                                     f"{camera.width}x{camera.height}")
         query = self.extractor(rgb)
         t1 = time.perf_counter()
+        result = self.localize_features(query, camera)
+        result.timings |= {"features": t1 - t0, "total": time.perf_counter() - t0}
+        return result
+
+    def localize_features(self, query: Features, camera: Camera | None = None) -> LocalizationResult:
+        """Pose from the query's already extracted features (this map's tier and ``max_keypoints``): the same
+        result as :meth:`localize` on the image they came from, without extracting them again."""
+        camera = camera or self.camera
+        t1 = time.perf_counter()
         pairs = set()
         for i in self._candidates(query):
             db_features, db_points = self._db[i]
@@ -139,7 +148,7 @@ class Localizer:
         t2 = time.perf_counter()
         result = self._pnp(query, corr, camera)
         t3 = time.perf_counter()
-        result.timings = {"features": t1 - t0, "matching": t2 - t1, "pnp": t3 - t2, "total": t3 - t0}
+        result.timings = {"features": 0.0, "matching": t2 - t1, "pnp": t3 - t2, "total": t3 - t1}
         return result
 
     def _pnp(self, query: Features, corr: np.ndarray, camera: Camera) -> LocalizationResult:

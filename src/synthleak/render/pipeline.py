@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from synthleak.cache import MARKER
 from synthleak.config import StudyConfig, config_to_dict
 from synthleak.executors import Executor, LocalExecutor, chunks
 from synthleak.render.base import Camera, RenderScene
@@ -315,7 +316,8 @@ def write_manifest(out_dir: Path, config: StudyConfig) -> Path:
     """``manifest.json``: config, seed, package versions and the sha256 of every other file (sorted)."""
     out_dir = Path(out_dir)
     clean_temp_files(out_dir)
-    files = sorted(p for p in out_dir.rglob("*") if p.is_file() and p.name != MANIFEST)
+    # cache markers (synthleak.cache) are bookkeeping of the study, not dataset content
+    files = sorted(p for p in out_dir.rglob("*") if p.is_file() and p.name not in (MANIFEST, MARKER))
     manifest = {
         "config": config_to_dict(config),
         "seed": config.seed,
