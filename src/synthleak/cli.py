@@ -196,7 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("config")
     p.add_argument("--out", required=True)
     p.add_argument("--force", action="append", metavar="STAGE",
-                   help="redo a stage: stages, render, maps, queries, attack, report (repeatable)")
+                   help="redo a stage: render, maps, features, queries, attack, report (repeatable)")
     p.add_argument("--server", help="attack a running HTTP server instead of in-process localizers")
     p.add_argument("--workers", type=int, default=1, help="worker processes for rendering and queries")
     p.add_argument("--executor", choices=("local", "ray"), default="local",

@@ -19,7 +19,6 @@ import pycolmap
 from synthleak.config import LocalizeConfig
 from synthleak.localize.features import Features
 from synthleak.localize.pairs import pairs_from_poses
-from synthleak.localize.progress import track
 from synthleak.localize.retrieval import BowIndex
 from synthleak.localize.sequence import SequenceError, SequenceFiles, read_sequence
 from synthleak.localize.store import FORMAT_VERSION, camera_to_json
@@ -30,6 +29,7 @@ from synthleak.localize.triangulation import (
     fundamental_from_poses,
     triangulate_track,
 )
+from synthleak.progress import progress_bar
 
 EPIPOLAR_MAX_PX = 4.0
 TRIANGULATION_MAX_ERROR_PX = 4.0
@@ -83,12 +83,12 @@ def build_map(
     matcher = tier_spec.make_matcher(weights_dir)
     names = list(seq.map_frames)
     poses = [seq.cam_from_world[n] for n in names]
-    features: list[Features] = [extractor(seq.rgb(n)) for n in track(names, "features", progress)]
+    features: list[Features] = [extractor(seq.rgb(n)) for n in progress_bar(names, "features", progress)]
 
     k = seq.camera.K
     matches: dict[tuple[int, int], np.ndarray] = {}
     pairs = pairs_from_poses(poses, config.pairs_per_image)
-    for i, j in track(pairs, "matching", progress):
+    for i, j in progress_bar(pairs, "matching", progress):
         m = matcher(features[i], features[j])
         if len(m):
             f = fundamental_from_poses(k, poses[i], poses[j])
@@ -101,7 +101,7 @@ def build_map(
     projections = np.stack([k @ p[:3] for p in poses])
     centres = np.stack([np.linalg.inv(p)[:3, 3] for p in poses])
     keypoints = [f.keypoints for f in features]
-    points = [p for t in track(tracks, "triangulation", progress)
+    points = [p for t in progress_bar(tracks, "triangulation", progress)
               if (p := triangulate_track(t, keypoints, projections, centres, TRIANGULATION_MAX_ERROR_PX,
                                          TRIANGULATION_MIN_ANGLE_DEG)) is not None]
 
