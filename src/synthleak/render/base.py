@@ -54,6 +54,16 @@ class RenderMesh:
     metallic: float = 0.0
     emissive: tuple[float, float, float] | None = None
 
+    def checked_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(vertices (N, 3) float64, faces (M, 3) int64)``; a clear error for an empty or broken mesh."""
+        verts = np.asarray(self.vertices, dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(self.faces, dtype=np.int64).reshape(-1, 3)
+        if len(verts) == 0 or len(faces) == 0:
+            raise ValueError(f"mesh {self.name!r} (instance {self.instance_id}) is empty")
+        if faces.min() < 0 or faces.max() >= len(verts):
+            raise ValueError(f"mesh {self.name!r}: face indices outside its {len(verts)} vertices")
+        return verts, faces
+
 
 @dataclass
 class InstanceInfo:

@@ -156,12 +156,7 @@ class BlenderRenderer:
 
     def _add_mesh(self, bscene: Any, mesh: RenderMesh, index: int) -> None:
         bpy = self._bpy
-        verts = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
-        faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
-        if len(verts) == 0 or len(faces) == 0:
-            raise ValueError(f"mesh {mesh.name!r} (instance {mesh.instance_id}) is empty")
-        if faces.min() < 0 or faces.max() >= len(verts):
-            raise ValueError(f"mesh {mesh.name!r}: face indices outside its {len(verts)} vertices")
+        verts, faces = mesh.checked_arrays()
         if not 0 <= int(mesh.instance_id) <= 0xFFFF:
             raise ValueError(f"mesh {mesh.name!r}: instance_id {mesh.instance_id} does not fit uint16")
         data = bpy.data.meshes.new(f"m{index}_{mesh.name}")

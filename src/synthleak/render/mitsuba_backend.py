@@ -84,12 +84,7 @@ def _bsdf(mi: Any, mesh: RenderMesh) -> Any:
 
 
 def _mesh(mi: Any, mesh: RenderMesh, index: int) -> Any:
-    verts = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
-    faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
-    if len(verts) == 0 or len(faces) == 0:
-        raise ValueError(f"mesh {mesh.name!r} (instance {mesh.instance_id}) is empty")
-    if faces.min() < 0 or faces.max() >= len(verts):
-        raise ValueError(f"mesh {mesh.name!r}: face indices outside its {len(verts)} vertices")
+    verts, faces = mesh.checked_arrays()
     textured = mesh.texture is not None and mesh.uv is not None
     props = mi.Properties()
     props["bsdf"] = _bsdf(mi, mesh)

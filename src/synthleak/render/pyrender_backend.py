@@ -67,12 +67,7 @@ def _pyrender() -> Any:
 
 def _flat_primitive(pyrender: Any, mesh: RenderMesh) -> Any:
     """A pyrender primitive with per-face normals (vertices unshared) and the mesh's material."""
-    verts = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
-    faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
-    if len(verts) == 0 or len(faces) == 0:
-        raise ValueError(f"mesh {mesh.name!r} (instance {mesh.instance_id}) is empty")
-    if faces.min() < 0 or faces.max() >= len(verts):
-        raise ValueError(f"mesh {mesh.name!r}: face indices outside its {len(verts)} vertices")
+    verts, faces = mesh.checked_arrays()
     tri = verts[faces]  # (F, 3, 3)
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     length = np.linalg.norm(normal, axis=1, keepdims=True)
