@@ -21,7 +21,6 @@ counted inside the image only), boxes are ``[x, y, w, h]`` with ``w = x_max - x_
 
 from __future__ import annotations
 
-import json
 import warnings
 from pathlib import Path
 from typing import Any
@@ -39,6 +38,7 @@ from synthleak.render.dataset import (
     atomic_write_text,
     encode_png,
     load_sequence,
+    read_json,
 )
 
 ENLARGE = 3
@@ -174,15 +174,6 @@ def depth_png(depth_m: np.ndarray, depth_scale: float, where: str = "depth", war
     return out
 
 
-def _read_json(path: Path) -> Any:
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing file (render the sequence first)")
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path}: not valid JSON ({exc})") from exc
-
-
 def _cam_from_model(path: Path, key: str, entry: dict[str, Any]) -> np.ndarray:
     try:
         rot = np.asarray(entry["cam_R_m2c"], dtype=np.float64).reshape(3, 3)
@@ -201,8 +192,8 @@ def write_bop_extras(seq_dir: Path, scene: RenderScene, depth_scale: float = 0.1
     camera = seq.camera
     bop = seq_dir / "bop"
     gt_path, cam_path = bop / "scene_gt.json", bop / "scene_camera.json"
-    scene_gt = _read_json(gt_path)
-    scene_camera = _read_json(cam_path)
+    scene_gt = read_json(gt_path)
+    scene_camera = read_json(cam_path)
     meshes = instance_model_meshes(scene)
     silhouettes: dict[int, ObjectSilhouette] = {}
     roles = {iid: info.role for iid, info in scene.instances.items()}

@@ -359,9 +359,10 @@ class Sequence:
         return {o.instance_id: o for o in self.objects}
 
 
-def _read_json(path: Path) -> Any:
+def read_json(path: Path) -> Any:
+    """A sequence's JSON file; a DatasetError naming the file when it is missing or malformed."""
     if not path.is_file():
-        raise DatasetError(f"{path}: missing file")
+        raise DatasetError(f"{path}: missing file (render the sequence first)")
     try:
         return json.loads(path.read_text())
     except json.JSONDecodeError as exc:
@@ -459,7 +460,7 @@ def load_sequence(path: Path) -> Sequence:
     camera = read_colmap_camera(root / "colmap" / "cameras.txt")
     poses = read_colmap_images(root / "colmap" / "images.txt")
     objects_path = root / "objects.json"
-    objects = _read_json(objects_path)
+    objects = read_json(objects_path)
     for key in ("instances", "frame", "target_instance_id"):
         if key not in objects:
             raise DatasetError(f"{objects_path}: missing field {key!r}")
@@ -471,7 +472,7 @@ def load_sequence(path: Path) -> Sequence:
     split: dict[str, list[str]] = {}
     split_path = root / "split.json"
     if split_path.is_file():
-        raw = _read_json(split_path)
+        raw = read_json(split_path)
         for key in ("map", "query"):
             if not isinstance(raw.get(key), list):
                 raise DatasetError(f"{split_path}: field {key!r} must be a list of frame names")
