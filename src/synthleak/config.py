@@ -56,6 +56,8 @@ class RenderConfig:
     attacker_frames: int = 100
     query_every: int = 5
     """Every n-th walk-through frame is held out as a genuine query and kept out of the map."""
+    raster_shadows: bool = True
+    """pyrender only: shadow maps for rect (spot) and distant lights; off renders RGB about 2x faster."""
     notes: str = ""
 
 

@@ -27,6 +27,28 @@ START_METHOD = "spawn"
 unsafe; spawn costs ~1-2 s of imports per worker, once per pool)."""
 
 
+THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "LP_NUM_THREADS")
+"""Thread-count variables of the libraries a worker loads (BLAS, OpenMP, Mesa's llvmpipe)."""
+
+
+def limit_worker_threads(threads: int) -> None:
+    """Cap the native thread pools of this (worker) process at ``threads``: the environment variables for
+    libraries loaded later (llvmpipe reads LP_NUM_THREADS when the GL context is made) and threadpoolctl
+    for BLAS/OpenMP already loaded. With N workers on C cores each gets C // N, so N workers that each
+    spread a matrix product or a raster over all cores do not fight over them. Results do not change."""
+    threads = max(1, int(threads))
+    for name in THREAD_ENV:
+        os.environ[name] = str(threads)
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(threads)
+
+
+def threads_per_worker(workers: int) -> int:
+    """Cores per worker: ``os.cpu_count() // workers`` (at least 1)."""
+    return max(1, (os.cpu_count() or 1) // max(1, int(workers)))
+
+
 class ExecutorError(RuntimeError):
     """A task that failed in a worker; the message names the task."""
 
@@ -75,7 +97,8 @@ class LocalExecutor(Executor):
     def _get_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
             ctx = multiprocessing.get_context(self.start_method)
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx)
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=limit_worker_threads,
+                                             initargs=(threads_per_worker(self.workers),))
         return self._pool
 
     def map(self, fn: Callable[[T], R], items: Iterable[T], description: str = "tasks",
@@ -103,11 +126,23 @@ class LocalExecutor(Executor):
                             raise ExecutorError(f"task {_describe(fn, items[i])} failed: "
                                                 f"{type(exc).__name__}: {exc}") from exc
                         bar.advance(task)
-            except BaseException:
+            except BaseException as exc:
                 for future in pending:
                     future.cancel()
+                if not isinstance(exc, Exception):  # Ctrl-C, SIGTERM (SystemExit): stop the workers now
+                    self.terminate()
                 raise
         return results
+
+    def terminate(self) -> None:
+        """Kill the workers without waiting for their running tasks (an interrupted study resumes later)."""
+        if self._pool is None:
+            return
+        for process in list(getattr(self._pool, "_processes", {}).values()):
+            if process.is_alive():
+                process.terminate()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        self._pool = None
 
     def close(self) -> None:
         if self._pool is not None:
@@ -138,6 +173,9 @@ class RayExecutor(Executor):
                 kwargs["num_cpus"] = workers or os.cpu_count() or 1
             # workers import synthleak from the driver's environment; pass the driver's egl choice along
             env = {k: os.environ[k] for k in ("PYOPENGL_PLATFORM",) if k in os.environ}
+            # one task per CPU: cap each task's native thread pools accordingly (unless the user set them)
+            threads = str(max(1, int(num_cpus_per_task)))
+            env |= {k: threads for k in THREAD_ENV if k not in os.environ}
             if env:
                 kwargs["runtime_env"] = {"env_vars": env}
             ray.init(**kwargs)

@@ -6,8 +6,6 @@ import numpy as np
 
 from synthleak.localize.features import Features
 
-_POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.float32)
-
 
 def distance_matrix(a: np.ndarray, b: np.ndarray, binary: bool) -> np.ndarray:
     """(Na, Nb) L2 distances (float) or Hamming distances (packed uint8 bits)."""
@@ -15,10 +13,18 @@ def distance_matrix(a: np.ndarray, b: np.ndarray, binary: bool) -> np.ndarray:
         bits_a = np.unpackbits(a, axis=1).astype(np.float32)
         bits_b = np.unpackbits(b, axis=1).astype(np.float32)
         return bits_a.sum(1, keepdims=True) + bits_b.sum(1)[None] - 2.0 * bits_a @ bits_b.T
-    a = a.astype(np.float32)
-    b = b.astype(np.float32)
-    sq = (a * a).sum(1, keepdims=True) + (b * b).sum(1)[None] - 2.0 * a @ b.T
-    return np.sqrt(np.maximum(sq, 0.0))
+    return np.sqrt(squared_l2(a, b))
+
+
+def squared_l2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(Na, Nb) float32 squared L2 distances: one BLAS product, then in-place updates (no temporaries)."""
+    a = np.asarray(a, dtype=np.float32)
+    b = np.asarray(b, dtype=np.float32)
+    dist = a @ b.T
+    dist *= -2.0
+    dist += np.einsum("ij,ij->i", a, a)[:, None]
+    dist += np.einsum("ij,ij->i", b, b)[None]
+    return np.maximum(dist, 0.0, out=dist)
 
 
 def match_features(a: Features, b: Features, ratio: float, mutual: bool) -> np.ndarray:
@@ -27,14 +33,25 @@ def match_features(a: Features, b: Features, ratio: float, mutual: bool) -> np.n
         return np.zeros((0, 2), np.int64)
     if a.binary:
         return _match_binary(a.descriptors, b.descriptors, ratio, mutual)
-    dist = distance_matrix(a.descriptors, b.descriptors, a.binary)
+    # Lowe's test on squared distances: d0 < r d1  <=>  d0^2 < r^2 d1^2 (no square roots).
+    return nearest_neighbours(squared_l2(a.descriptors, b.descriptors), ratio * ratio, mutual)
+
+
+def nearest_neighbours(dist: np.ndarray, ratio: float, mutual: bool) -> np.ndarray:
+    """Matches from an (Na, Nb) float distance matrix (modified in place and restored): each row's nearest
+    column (lowest index on ties) if ``best < ratio * second`` (when 0 < ratio < 1) and, with ``mutual``,
+    the row is also that column's nearest row."""
+    rows = np.arange(dist.shape[0])
     nn = np.argmin(dist, axis=1)
-    keep = np.ones(len(a), dtype=bool)
+    keep = np.ones(len(rows), dtype=bool)
     if 0.0 < ratio < 1.0 and dist.shape[1] > 1:
-        two = np.partition(dist, 1, axis=1)[:, :2]
-        keep &= two[:, 0] < ratio * two[:, 1]
+        best = dist[rows, nn]
+        dist[rows, nn] = np.inf  # the row minimum after removing the best is the second best
+        second = dist.min(axis=1)
+        dist[rows, nn] = best
+        keep &= best < ratio * second
     if mutual:
-        keep &= np.argmin(dist, axis=0)[nn] == np.arange(len(a))
+        keep &= np.argmin(dist, axis=0)[nn] == rows
     idx = np.nonzero(keep)[0]
     return np.stack([idx, nn[idx]], axis=1).astype(np.int64)
 

@@ -27,7 +27,6 @@ from typing import Any
 
 import numpy as np
 import trimesh
-from trimesh.ray.ray_pyembree import RayMeshIntersector
 
 from synthleak.geometry.poses import invert, make_pose, transform_points
 from synthleak.render.base import Camera, RenderScene
@@ -48,25 +47,35 @@ NEAR = 1e-6
 
 # --------------------------------------------------------------------------------------------- meshes
 class ObjectSilhouette:
-    """One instance's triangles in its own (model) frame, with a BVH for silhouette rays."""
+    """One instance's triangles in its own (model) frame, with an embree BVH for silhouette rays.
+
+    Rays go to embree's occlusion query directly (any hit, float32, coordinates shifted to the mesh's
+    corner for precision): no per-call normalisation or float64 copies, which cost more than the casting."""
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+
         self.vertices = np.asarray(vertices, dtype=np.float64)
         self.faces = np.asarray(faces, dtype=np.int64)
-        mesh = trimesh.Trimesh(self.vertices, self.faces, process=False, validate=False)
-        self._intersector = RayMeshIntersector(mesh, scale_to_box=False)
+        self._shift = self.vertices.min(axis=0) if len(self.vertices) else np.zeros(3)
+        self._scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene=self._scene, vertices=(self.vertices - self._shift).astype(np.float32),
+                     indices=self.faces.astype(np.int32))
 
     def hits(self, camera: Camera, cam_from_model: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Bool per pixel (u[i], v[i]): does the ray through its centre (u + 0.5, v + 0.5) hit the mesh."""
-        if len(u) == 0:
-            return np.zeros(0, dtype=bool)
-        dirs_cam = np.stack(
-            [(u + 0.5 - camera.cx) / camera.fx, (v + 0.5 - camera.cy) / camera.fy, np.ones(len(u))], axis=1
-        )
-        rot = np.asarray(cam_from_model, dtype=np.float64)[:3, :3]
-        origin = -rot.T @ np.asarray(cam_from_model, dtype=np.float64)[:3, 3]
-        dirs = dirs_cam @ rot
-        return np.asarray(self._intersector.intersects_any(np.broadcast_to(origin, dirs.shape), dirs), dtype=bool)
+        if len(u) == 0 or len(self.faces) == 0:
+            return np.zeros(len(u), dtype=bool)
+        pose = np.asarray(cam_from_model, dtype=np.float64)
+        rot = pose[:3, :3]
+        origin = (-rot.T @ pose[:3, 3] - self._shift).astype(np.float32)
+        x = ((u + 0.5 - camera.cx) / camera.fx).astype(np.float32)
+        y = ((v + 0.5 - camera.cy) / camera.fy).astype(np.float32)
+        axes = rot.astype(np.float32)  # rows: the camera's x, y, z axes in the model frame
+        dirs = x[:, None] * axes[0] + y[:, None] * axes[1] + axes[2]
+        origins = np.repeat(origin[None], len(dirs), axis=0)
+        return np.asarray(self._scene.run(origins, dirs, query="OCCLUDED")) >= 0
 
 
 def instance_model_meshes(scene: RenderScene) -> dict[int, tuple[np.ndarray, np.ndarray]]:
@@ -91,10 +100,12 @@ def _bbox(xs: np.ndarray, ys: np.ndarray) -> list[int]:
 
 
 def _region(camera: Camera, cam_from_model: np.ndarray, vertices: np.ndarray, enlarge: bool) -> tuple:
-    """Pixel index ranges (us, vs) worth casting: the projected vertices' box, within the (enlarged) image."""
+    """``(us, vs, z_far)``: pixel index ranges worth casting (the projected vertices' box, within the
+    (enlarged) image) and the largest camera z of the vertices (no ray meets the mesh beyond it)."""
     w, h = camera.width, camera.height
     lo_u, hi_u, lo_v, hi_v = (-w, 2 * w, -h, 2 * h) if enlarge else (0, w, 0, h)
     pts = transform_points(cam_from_model, vertices)
+    z_far = float(pts[:, 2].max()) if len(pts) else np.inf
     if len(pts) and np.all(pts[:, 2] > NEAR):
         u = camera.fx * pts[:, 0] / pts[:, 2] + camera.cx
         v = camera.fy * pts[:, 1] / pts[:, 2] + camera.cy
@@ -103,8 +114,8 @@ def _region(camera: Camera, cam_from_model: np.ndarray, vertices: np.ndarray, en
         lo_v = max(lo_v, int(np.floor(v.min() - 0.5)) - 1)
         hi_v = min(hi_v, int(np.ceil(v.max() - 0.5)) + 2)
     elif len(pts) and np.all(pts[:, 2] <= NEAR):
-        return np.arange(0), np.arange(0)
-    return np.arange(lo_u, max(lo_u, hi_u)), np.arange(lo_v, max(lo_v, hi_v))
+        return np.arange(0), np.arange(0), z_far
+    return np.arange(lo_u, max(lo_u, hi_u)), np.arange(lo_v, max(lo_v, hi_v)), z_far
 
 
 def gt_info_for(
@@ -115,14 +126,17 @@ def gt_info_for(
     depth_valid: np.ndarray,
     enlarge: bool = True,
     scene_miss: np.ndarray | None = None,
+    depth: np.ndarray | None = None,
 ) -> tuple[dict[str, Any], np.ndarray]:
     """(scene_gt_info entry, full in-image mask) of one object in one frame.
 
     ``visible``: bool (H, W) instance mask of the object; ``depth_valid``: bool (H, W) non-zero BOP depth;
-    ``scene_miss``: bool (H, W) pixels whose ray hits nothing in the whole scene (so not this object either).
-    Only the pixels these do not decide are ray cast."""
+    ``scene_miss``: bool (H, W) pixels whose ray hits nothing in the whole scene (so not this object either);
+    ``depth``: (H, W) z-depth of the visible surface (m): a ray that meets the object meets the visible
+    surface first, so a pixel whose visible surface lies beyond the object's farthest vertex misses it.
+    Only the pixels these do not decide are ray cast (mostly those of occluders in front of the object)."""
     h, w = camera.height, camera.width
-    us, vs = _region(camera, cam_from_model, silhouette.vertices, enlarge)
+    us, vs, z_far = _region(camera, cam_from_model, silhouette.vertices, enlarge)
     u, v = (g.ravel() for g in np.meshgrid(us, vs))
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
     hit = np.zeros(len(u), dtype=bool)
@@ -130,6 +144,8 @@ def gt_info_for(
     iu, iv = u[inside], v[inside]
     hit[inside] = visible[iv, iu]
     known[inside] = visible[iv, iu] | (scene_miss[iv, iu] if scene_miss is not None else False)
+    if depth is not None:
+        known[inside] |= depth[iv, iu] > z_far * (1.0 + 1e-4) + 1e-4  # margin: z-buffer depth rounding
     todo = ~known
     hit[todo] = silhouette.hits(camera, cam_from_model, u[todo], v[todo])
     full = np.zeros((h, w), dtype=bool)
@@ -224,6 +240,7 @@ def write_bop_extras(seq_dir: Path, scene: RenderScene, depth_scale: float = 0.1
                 valid,
                 enlarge=roles.get(obj_id) != "shell",
                 scene_miss=miss,
+                depth=depth,
             )
             entries.append(info)
             name = f"{im_id:06d}_{gt_id:06d}.png"

@@ -251,6 +251,6 @@ class PyrenderRenderer:
 
 
 def create_pyrender_renderer(config: RenderConfig) -> PyrenderRenderer:
-    """Registry factory: ``[render] renderer = "pyrender"``; ``spp``/``filter`` do not apply (4x MSAA)."""
-    del config
-    return PyrenderRenderer()
+    """Registry factory: ``[render] renderer = "pyrender"``; ``spp``/``filter`` do not apply (4x MSAA);
+    ``raster_shadows`` switches the shadow maps."""
+    return PyrenderRenderer(shadows=config.raster_shadows)
