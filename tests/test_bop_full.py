@@ -182,3 +182,48 @@ def test_real_pipeline_sequence_gets_bop_extras(tmp_path) -> None:
     gt = json.loads((out / "bop" / "scene_gt.json").read_text())
     for entry, gi in zip(gt["0"], info["0"], strict=True):
         assert gi["px_count_visib"] == int((inst == entry["obj_id"]).sum())
+
+
+def test_depth_pruned_silhouettes_equal_casting_every_pixel(bop_seq) -> None:
+    """The rays gt_info_for skips (visible surface beyond the object's farthest vertex) would all miss:
+    the pruned full masks equal a ray cast of every pixel of the image against the object alone."""
+    from synthleak.render.bop_full import ObjectSilhouette, gt_info_for, instance_model_meshes
+    from synthleak.render.dataset import load_sequence
+
+    seq_dir, scene = bop_seq
+    seq = load_sequence(seq_dir)
+    camera = seq.camera
+    meshes = instance_model_meshes(scene)
+    gt = json.loads((seq_dir / "bop" / "scene_gt.json").read_text())
+    u, v = (g.ravel() for g in np.meshgrid(np.arange(W), np.arange(H)))
+    pruned_rays = 0
+    for key, entries in gt.items():
+        depth, inst = seq.depth(int(key)), seq.instance(int(key))
+        for entry in entries:
+            obj = int(entry["obj_id"])
+            pose = make_pose(np.asarray(entry["cam_R_m2c"], float).reshape(3, 3),
+                             np.asarray(entry["cam_t_m2c"], float) / 1000.0)
+            silhouette = ObjectSilhouette(*meshes[obj])
+            every_pixel = silhouette.hits(camera, pose, u, v).reshape(H, W)
+            _, with_depth = gt_info_for(camera, pose, silhouette, inst == obj, np.isfinite(depth), depth=depth)
+            _, without = gt_info_for(camera, pose, silhouette, inst == obj, np.isfinite(depth))
+            assert np.array_equal(with_depth, every_pixel | (inst == obj))
+            assert np.array_equal(with_depth, without)
+            pruned_rays += int((np.isfinite(depth) & (inst != obj)).sum())
+    assert pruned_rays > 0
+
+
+def test_bop_extras_can_be_switched_off(tmp_path) -> None:
+    """``[render] bop_extras = false``: the pipeline writes the core BOP files only; the rest is unchanged."""
+    from synthleak.config import RenderConfig, StudyConfig
+    from synthleak.render.pipeline import render_scene_sequence
+
+    render = dict(width=48, height=36, spp=1, scene_frames=2, query_every=2)
+    on = render_scene_sequence(box_scene(), tmp_path / "on", StudyConfig("t", 3, render=RenderConfig(**render)),
+                               "scene", progress=False)
+    off = render_scene_sequence(box_scene(), tmp_path / "off",
+                                StudyConfig("t", 3, render=RenderConfig(**render, bop_extras=False)),
+                                "scene", progress=False)
+    assert (on / "bop" / "scene_gt_info.json").is_file() and (on / "bop" / "mask").is_dir()
+    assert sorted(p.name for p in (off / "bop").iterdir()) == ["scene_camera.json", "scene_gt.json"]
+    assert (on / "images" / "000001.png").read_bytes() == (off / "images" / "000001.png").read_bytes()

@@ -5,13 +5,17 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 import pytest
 
-from synthleak.executors import ExecutorError, LocalExecutor, chunks, make_executor
+from synthleak.executors import ExecutorError, LocalExecutor, chunks, make_executor, threads_per_worker
 
 
 def _slow_square(x: int) -> int:
@@ -35,6 +39,66 @@ def test_local_executor_keeps_input_order() -> None:
 def test_local_executor_names_the_failed_task() -> None:
     with LocalExecutor(2) as pool, pytest.raises(ExecutorError, match=r"_fail_on_three\(3\).*three"):
         pool.map(_fail_on_three, range(6))
+
+
+def _thread_settings(_: int) -> tuple[str | None, int]:
+    import numpy  # noqa: F401  (loads BLAS in the worker)
+    from threadpoolctl import threadpool_info
+
+    blas = [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
+    return os.environ.get("LP_NUM_THREADS"), max(blas) if blas else 1
+
+
+def test_pool_workers_share_the_cores_instead_of_each_taking_all() -> None:
+    with LocalExecutor(2) as pool:
+        settings = pool.map(_thread_settings, range(4))
+    expected = threads_per_worker(2)
+    assert expected == max(1, (os.cpu_count() or 1) // 2)
+    assert all(lp == str(expected) and blas <= expected for lp, blas in settings)
+
+
+_SIGTERM_SCRIPT = """
+import os, sys, time
+from synthleak.cli import _exit_on_sigterm
+from synthleak.executors import LocalExecutor
+import signal
+signal.signal(signal.SIGTERM, _exit_on_sigterm)
+sys.path.insert(0, {tests!r})
+from test_executors import _record_pid_and_sleep
+with LocalExecutor(2) as pool:
+    pool.map(_record_pid_and_sleep, [({folder!r}, i) for i in range(4)])
+"""
+
+
+def _record_pid_and_sleep(task: tuple[str, int]) -> None:
+    folder, i = task
+    (Path(folder) / f"{os.getpid()}.pid").write_text(str(i))
+    time.sleep(60)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def test_sigterm_stops_the_worker_pool(tmp_path: Path) -> None:
+    """SIGTERM to a driver (e.g. a study) stops its pool's workers instead of leaving them running."""
+    script = _SIGTERM_SCRIPT.format(tests=str(Path(__file__).parent), folder=str(tmp_path))
+    driver = subprocess.Popen([sys.executable, "-c", script])
+    deadline = time.time() + 60
+    while len(list(tmp_path.glob("*.pid"))) < 2 and time.time() < deadline:
+        time.sleep(0.1)
+    workers = [int(p.stem) for p in tmp_path.glob("*.pid")]
+    assert len(workers) == 2 and all(_alive(pid) for pid in workers)
+    driver.send_signal(signal.SIGTERM)
+    assert driver.wait(timeout=30) == 128 + signal.SIGTERM
+    deadline = time.time() + 10
+    while any(_alive(pid) for pid in workers) and time.time() < deadline:
+        time.sleep(0.1)
+    assert not any(_alive(pid) for pid in workers)
 
 
 def test_bad_executor_arguments() -> None:

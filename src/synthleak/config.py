@@ -56,6 +56,9 @@ class RenderConfig:
     attacker_frames: int = 100
     query_every: int = 5
     """Every n-th walk-through frame is held out as a genuine query and kept out of the map."""
+    bop_extras: bool = True
+    """Write the whole BOP layout after each sequence (full/visible masks, scene_gt_info, 16-bit depth, models);
+    false keeps only bop/scene_gt.json and scene_camera.json (the attack study does not read the extras)."""
     raster_shadows: bool = True
     """pyrender only: shadow maps for rect (spot) and distant lights; off renders RGB about 2x faster."""
     notes: str = ""

@@ -137,25 +137,37 @@ def gt_info_for(
     Only the pixels these do not decide are ray cast (mostly those of occluders in front of the object)."""
     h, w = camera.height, camera.width
     us, vs, z_far = _region(camera, cam_from_model, silhouette.vertices, enlarge)
-    u, v = (g.ravel() for g in np.meshgrid(us, vs))
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    hit = np.zeros(len(u), dtype=bool)
-    known = np.zeros(len(u), dtype=bool)
-    iu, iv = u[inside], v[inside]
-    hit[inside] = visible[iv, iu]
-    known[inside] = visible[iv, iu] | (scene_miss[iv, iu] if scene_miss is not None else False)
-    if depth is not None:
-        known[inside] |= depth[iv, iu] > z_far * (1.0 + 1e-4) + 1e-4  # margin: z-buffer depth rounding
-    todo = ~known
-    hit[todo] = silhouette.hits(camera, cam_from_model, u[todo], v[todo])
-    full = np.zeros((h, w), dtype=bool)
-    full[v[inside & hit], u[inside & hit]] = True
-    extra = visible & ~full  # visible pixels outside the cast region (never for a correct region)
-    full |= visible
-    all_x, all_y = u[hit], v[hit]
-    if extra.any():
-        ey, ex = np.nonzero(extra)
-        all_x, all_y = np.concatenate([all_x, ex]), np.concatenate([all_y, ey])
+    full = visible.copy()
+    out_x, out_y = np.zeros(0, np.int64), np.zeros(0, np.int64)
+    if len(us) and len(vs):
+        u0, u1, v0, v1 = int(us[0]), int(us[-1]) + 1, int(vs[0]), int(vs[-1]) + 1
+        a0, a1, b0, b1 = max(u0, 0), min(u1, w), max(v0, 0), min(v1, h)
+        if a0 < a1 and b0 < b1:  # the region's part inside the image: cast only what the frame leaves open
+            window = (slice(b0, b1), slice(a0, a1))
+            known = visible[window].copy()
+            if scene_miss is not None:
+                known |= scene_miss[window]
+            if depth is not None:
+                known |= depth[window] > z_far * (1.0 + 1e-4) + 1e-4  # margin: z-buffer depth rounding
+            ty, tx = np.nonzero(~known)
+            tx, ty = tx + a0, ty + b0
+            hit = silhouette.hits(camera, cam_from_model, tx, ty)
+            full[ty[hit], tx[hit]] = True
+        # the region's part outside the image (enlarged silhouettes of truncated objects): cast it all
+        bands = [(u0, u1, v0, min(v1, 0)), (u0, u1, max(v0, h), v1),
+                 (u0, min(u1, 0), b0, b1), (max(u0, w), u1, b0, b1)]
+        xs, ys = [], []
+        for c0, c1, r0, r1 in bands:
+            if c0 < c1 and r0 < r1:
+                gx, gy = np.meshgrid(np.arange(c0, c1), np.arange(r0, r1))
+                xs.append(gx.ravel())
+                ys.append(gy.ravel())
+        if xs:
+            bx, by = np.concatenate(xs), np.concatenate(ys)
+            hit = silhouette.hits(camera, cam_from_model, bx, by)
+            out_x, out_y = bx[hit], by[hit]
+    in_y, in_x = np.nonzero(full)
+    all_x, all_y = np.concatenate([in_x, out_x]), np.concatenate([in_y, out_y])
     px_all = int(len(all_x))
     px_visib = int(visible.sum())
     info = {

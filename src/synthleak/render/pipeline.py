@@ -217,9 +217,11 @@ def render_sequences(
         tasks += plan_sequence(job, config)
     executor.map(render_frame_task, tasks, "render frames", progress)
     _WORKER_RENDERER.clear()  # the serial path renders in this process: free the last scene
-    started = {id(t.job) for t in tasks}
-    extras = [job for job in jobs if id(job) in started or not (job.out_dir / "bop" / "scene_gt_info.json").is_file()]
-    executor.map(bop_extras_task, extras, "BOP extras", progress)
+    if config.render.bop_extras:
+        started = {id(t.job) for t in tasks}
+        extras = [job for job in jobs
+                  if id(job) in started or not (job.out_dir / "bop" / "scene_gt_info.json").is_file()]
+        executor.map(bop_extras_task, extras, "BOP extras", progress)
     return [job.out_dir for job in jobs]
 
 
