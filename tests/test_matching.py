@@ -46,3 +46,14 @@ def test_distance_matrix_is_l2_and_hamming() -> None:
     bits_b = rng.integers(0, 256, (4, 4), dtype=np.uint8)
     ham = np.unpackbits(bits_a[:, None] ^ bits_b[None], axis=-1).sum(-1)
     np.testing.assert_array_equal(distance_matrix(bits_a, bits_b, True), ham)
+
+
+def test_duplicate_descriptors_match_once_like_argmin() -> None:
+    """Two identical query descriptors tie exactly: the mutual check keeps the first, as argmin would."""
+    rng = np.random.default_rng(3)
+    b = rng.normal(size=(40, 16)).astype(np.float32)
+    a = (b[:20] + 0.01 * rng.normal(size=(20, 16))).astype(np.float32)
+    a[7] = a[4]
+    got = match_features(Features(np.zeros((20, 2)), a), Features(np.zeros((40, 2)), b), 0.8, True)
+    assert {tuple(m) for m in got.tolist()} == _reference(a, b, 0.8, True)
+    assert (4, 4) in {tuple(m) for m in got.tolist()} and 7 not in got[:, 0]

@@ -51,9 +51,22 @@ def nearest_neighbours(dist: np.ndarray, ratio: float, mutual: bool) -> np.ndarr
         dist[rows, nn] = best
         keep &= best < ratio * second
     if mutual:
-        keep &= np.argmin(dist, axis=0)[nn] == rows
+        keep &= _is_column_argmin(dist, rows, nn)
     idx = np.nonzero(keep)[0]
     return np.stack([idx, nn[idx]], axis=1).astype(np.int64)
+
+
+def _is_column_argmin(dist: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Bool per i: is ``rows[i]`` the first row attaining column ``cols[i]``'s minimum.
+
+    ``np.argmin(dist, axis=0)`` walks a C-ordered matrix column-wise (31 ms for 2048 x 2048 float32); the
+    column minima (a row-wise reduction, < 1 ms) and a tie-break among the candidate rows give the same
+    answer, except where another row with a different nearest column ties exactly with the minimum."""
+    candidate = dist[rows, cols] <= dist.min(axis=0)[cols]
+    first = np.zeros(len(rows), dtype=bool)
+    _, index = np.unique(cols[candidate], return_index=True)  # lowest candidate row per column
+    first[np.nonzero(candidate)[0][index]] = True
+    return first
 
 
 def _match_binary(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool) -> np.ndarray:
