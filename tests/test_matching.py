@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from synthleak.localize.features import Features
-from synthleak.localize.matching import distance_matrix, match_features
+from synthleak.localize.matching import match_features
 
 
 def _reference(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool) -> set[tuple[int, int]]:
@@ -35,17 +35,6 @@ def test_float_matcher_equals_reference(ratio: float, mutual: bool) -> None:
     assert {tuple(m) for m in got.tolist()} == _reference(a, b, ratio, mutual)
     if ratio == 0.8 and mutual:
         assert len(got) >= 55  # the noisy copies match
-
-
-def test_distance_matrix_is_l2_and_hamming() -> None:
-    rng = np.random.default_rng(1)
-    a, b = rng.normal(size=(5, 8)), rng.normal(size=(4, 8))
-    np.testing.assert_allclose(distance_matrix(a, b, False), np.linalg.norm(a[:, None] - b[None], axis=-1),
-                               rtol=1e-5, atol=1e-5)
-    bits_a = rng.integers(0, 256, (5, 4), dtype=np.uint8)
-    bits_b = rng.integers(0, 256, (4, 4), dtype=np.uint8)
-    ham = np.unpackbits(bits_a[:, None] ^ bits_b[None], axis=-1).sum(-1)
-    np.testing.assert_array_equal(distance_matrix(bits_a, bits_b, True), ham)
 
 
 def test_duplicate_descriptors_match_once_like_argmin() -> None:

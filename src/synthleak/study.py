@@ -186,7 +186,8 @@ def _features_path(root: Path, tier: str, item: dict[str, Any]) -> Path:
 def save_features(path: Path, features: Any, image_size: tuple[int, int]) -> None:
     """One image's features as ``.npz`` (exact arrays), written atomically."""
     import io
-    import os
+
+    from synthleak.render.dataset import atomic_write_bytes
 
     buffer = io.BytesIO()
     arrays = {"keypoints": features.keypoints, "descriptors": features.descriptors,
@@ -194,10 +195,7 @@ def save_features(path: Path, features: Any, image_size: tuple[int, int]) -> Non
     if features.scores is not None:
         arrays["scores"] = features.scores
     np.savez(buffer, **arrays)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_bytes(buffer.getvalue())
-    os.replace(tmp, path)
+    atomic_write_bytes(path, buffer.getvalue())
 
 
 def load_features(path: Path) -> tuple[Any, tuple[int, int]]:

@@ -7,15 +7,6 @@ import numpy as np
 from synthleak.localize.features import Features
 
 
-def distance_matrix(a: np.ndarray, b: np.ndarray, binary: bool) -> np.ndarray:
-    """(Na, Nb) L2 distances (float) or Hamming distances (packed uint8 bits)."""
-    if binary:
-        bits_a = np.unpackbits(a, axis=1).astype(np.float32)
-        bits_b = np.unpackbits(b, axis=1).astype(np.float32)
-        return bits_a.sum(1, keepdims=True) + bits_b.sum(1)[None] - 2.0 * bits_a @ bits_b.T
-    return np.sqrt(squared_l2(a, b))
-
-
 def squared_l2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(Na, Nb) float32 squared L2 distances: one BLAS product, then in-place updates (no temporaries)."""
     a = np.asarray(a, dtype=np.float32)

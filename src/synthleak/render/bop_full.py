@@ -100,8 +100,9 @@ def _bbox(xs: np.ndarray, ys: np.ndarray) -> list[int]:
 
 
 def _region(camera: Camera, cam_from_model: np.ndarray, vertices: np.ndarray, enlarge: bool) -> tuple:
-    """``(us, vs, z_far)``: pixel index ranges worth casting (the projected vertices' box, within the
-    (enlarged) image) and the largest camera z of the vertices (no ray meets the mesh beyond it)."""
+    """``(u0, u1, v0, v1, z_far)``: the pixel box worth casting, columns ``u0 <= u < u1`` and rows
+    ``v0 <= v < v1`` (the projected vertices' box, within the (enlarged) image; empty when ``u0 >= u1`` or
+    ``v0 >= v1``) and the largest camera z of the vertices (no ray meets the mesh beyond it)."""
     w, h = camera.width, camera.height
     lo_u, hi_u, lo_v, hi_v = (-w, 2 * w, -h, 2 * h) if enlarge else (0, w, 0, h)
     pts = transform_points(cam_from_model, vertices)
@@ -114,8 +115,8 @@ def _region(camera: Camera, cam_from_model: np.ndarray, vertices: np.ndarray, en
         lo_v = max(lo_v, int(np.floor(v.min() - 0.5)) - 1)
         hi_v = min(hi_v, int(np.ceil(v.max() - 0.5)) + 2)
     elif len(pts) and np.all(pts[:, 2] <= NEAR):
-        return np.arange(0), np.arange(0), z_far
-    return np.arange(lo_u, max(lo_u, hi_u)), np.arange(lo_v, max(lo_v, hi_v)), z_far
+        return 0, 0, 0, 0, z_far
+    return lo_u, hi_u, lo_v, hi_v, z_far
 
 
 def gt_info_for(
@@ -136,11 +137,10 @@ def gt_info_for(
     surface first, so a pixel whose visible surface lies beyond the object's farthest vertex misses it.
     Only the pixels these do not decide are ray cast (mostly those of occluders in front of the object)."""
     h, w = camera.height, camera.width
-    us, vs, z_far = _region(camera, cam_from_model, silhouette.vertices, enlarge)
+    u0, u1, v0, v1, z_far = _region(camera, cam_from_model, silhouette.vertices, enlarge)
     full = visible.copy()
     out_x, out_y = np.zeros(0, np.int64), np.zeros(0, np.int64)
-    if len(us) and len(vs):
-        u0, u1, v0, v1 = int(us[0]), int(us[-1]) + 1, int(vs[0]), int(vs[-1]) + 1
+    if u0 < u1 and v0 < v1:
         a0, a1, b0, b1 = max(u0, 0), min(u1, w), max(v0, 0), min(v1, h)
         if a0 < a1 and b0 < b1:  # the region's part inside the image: cast only what the frame leaves open
             window = (slice(b0, b1), slice(a0, a1))
