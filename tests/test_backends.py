@@ -395,3 +395,27 @@ def test_pyrender_renderers_coexist() -> None:
     again = second.render(cam, pose, seed=0)
     assert again.rgb.tobytes() == expected.rgb.tobytes()
     assert np.array_equal(again.instance, expected.instance)
+
+
+def test_pyrender_coincident_surfaces_in_scene_order() -> None:
+    """Two coplanar quads: the mesh listed first wins the depth test in colour and ids, whichever order
+    pyrender's node set would iterate in (it follows memory addresses, so it changed between processes)."""
+    if not _has("pyrender"):
+        pytest.skip(BACKENDS["pyrender"][2])
+    from synthleak.render.pyrender_backend import PyrenderRenderer
+
+    quad = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    colours = {1: (0.9, 0.1, 0.1), 2: (0.1, 0.1, 0.9)}
+    cam = Camera(32, 24, 30.0, 30.0, 16.0, 12.0)
+    pose = make_pose(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 3.0])  # above the quads, looking down
+    for first, second in ((1, 2), (2, 1)):
+        for _ in range(3):  # fresh scenes: new node objects at new addresses each time
+            meshes = [RenderMesh(f"quad{i}", i, quad, faces, None, None, base_color=colours[i])
+                      for i in (first, second)]
+            renderer = PyrenderRenderer(shadows=False)
+            renderer.prepare(RenderScene(meshes=meshes, lights=[], instances={}, ambient=1.0))
+            frame = renderer.render(cam, pose, seed=0)
+            assert np.all(frame.instance[4:20, 6:26] == first), (first, np.unique(frame.instance))
+            red_wins = frame.rgb[12, 16, 0] > frame.rgb[12, 16, 2]
+            assert red_wins == (first == 1), frame.rgb[12, 16]

@@ -24,6 +24,7 @@ Renders are deterministic (no random sampling; ``seed`` is unused).
 from __future__ import annotations
 
 import os
+import weakref
 from typing import Any
 
 import numpy as np
@@ -153,6 +154,30 @@ def decode_ids(rgb: np.ndarray) -> np.ndarray:
     return (rgb[..., 0].astype(np.uint16) << 8) | rgb[..., 1].astype(np.uint16)
 
 
+_DRAW_ORDER: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+"""pyrender scene -> its mesh nodes in the order the meshes were added (see :func:`_patch_renderer`)."""
+
+
+def _patch_renderer(renderer: Any) -> None:
+    """Make a ``pyrender.Renderer`` draw scenes prepared here in a fixed order.
+
+    pyrender sorts mesh nodes by the distance of their node origin from the camera and breaks ties in the
+    iteration order of a set of nodes, which follows memory addresses. Our meshes all sit at the identity
+    pose, so the order (and with it which of two coincident surfaces wins the depth test, in frames and
+    shadow maps) could change from process to process. Scenes in ``_DRAW_ORDER`` are drawn in the order
+    their meshes were added, opaque before transparent, whatever the camera. Bound to one ``Renderer``
+    instance: if pyrender rebuilds its renderer, the new one sorts as pyrender does."""
+    sorted_nodes = renderer._sorted_mesh_nodes
+
+    def nodes_in_insertion_order(scene: Any) -> list:
+        order = _DRAW_ORDER.get(scene)
+        if order is None:
+            return sorted_nodes(scene)
+        return [n for n in order if not n.mesh.is_transparent] + [n for n in order if n.mesh.is_transparent]
+
+    renderer._sorted_mesh_nodes = nodes_in_insertion_order
+
+
 class PyrenderRenderer:
     """Renderer protocol implementation; see the module docstring."""
 
@@ -179,6 +204,7 @@ class PyrenderRenderer:
     def _viewport(self, width: int, height: int) -> Any:
         if not _GL:
             _GL.append(self._pr.OffscreenRenderer(width, height))
+            _patch_renderer(_GL[0]._renderer)
         renderer = _GL[0]
         if (renderer.viewport_width, renderer.viewport_height) != (width, height):
             renderer.viewport_width, renderer.viewport_height = width, height
@@ -193,6 +219,7 @@ class PyrenderRenderer:
         bg = _linear_to_srgb(ambient)  # the background shows the ambient environment, as in mitsuba
         pscene = pr.Scene(bg_color=(bg, bg, bg, 1.0), ambient_light=(ambient, ambient, ambient))
         seg_map: dict[Any, np.ndarray] = {}
+        order = []
         for mesh in scene.meshes:
             if not 0 <= int(mesh.instance_id) <= 0xFFFF:
                 raise ValueError(f"mesh {mesh.name!r}: instance_id {mesh.instance_id} does not fit uint16")
@@ -201,11 +228,13 @@ class PyrenderRenderer:
             # pyrender 0.1.45's Mesh.bounds uses np.infty (gone in numpy 2): preset the cached bounds.
             pmesh._bounds = np.asarray(primitive.bounds, dtype=np.float64).copy()
             node = pscene.add(pmesh)
+            order.append(node)
             seg_map[node] = encode_ids(np.array(mesh.instance_id))
         for light in scene.lights:
             plight, pose = _light_node(pr, light)
             pscene.add(plight, pose=pose, name=light.name)
         self._cam_node = pscene.add(pr.IntrinsicsCamera(1.0, 1.0, 0.5, 0.5, znear=ZNEAR, zfar=ZFAR))
+        _DRAW_ORDER[pscene] = order
         self._scene, self._seg_map = pscene, seg_map
 
     def _set_camera(self, camera: Camera, cam_from_world: np.ndarray) -> None:
