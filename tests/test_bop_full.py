@@ -227,3 +227,31 @@ def test_bop_extras_can_be_switched_off(tmp_path) -> None:
     assert (on / "bop" / "scene_gt_info.json").is_file() and (on / "bop" / "mask").is_dir()
     assert sorted(p.name for p in (off / "bop").iterdir()) == ["scene_camera.json", "scene_gt.json"]
     assert (on / "images" / "000001.png").read_bytes() == (off / "images" / "000001.png").read_bytes()
+
+
+def test_mesh_behind_the_camera_is_clipped_not_cast_everywhere(bop_seq) -> None:
+    """The floor reaches behind the camera: its cast box comes from the mesh clipped at the camera plane
+    (smaller than the 3x enlarged image), and the enlarged silhouette's counts and box equal a ray cast of
+    every pixel of the enlarged image."""
+    from synthleak.render.bop_full import ObjectSilhouette, _region, gt_info_for, instance_model_meshes
+    from synthleak.render.dataset import load_sequence
+
+    seq_dir, scene = bop_seq
+    seq = load_sequence(seq_dir)
+    camera = seq.camera
+    entry = next(e for e in json.loads((seq_dir / "bop" / "scene_gt.json").read_text())["0"]
+                 if e["obj_id"] == FLOOR)
+    pose = make_pose(np.asarray(entry["cam_R_m2c"], float).reshape(3, 3),
+                     np.asarray(entry["cam_t_m2c"], float) / 1000.0)
+    floor = ObjectSilhouette(*instance_model_meshes(scene)[FLOOR])
+    z = transform_points(pose, floor.vertices)[:, 2]
+    assert z.min() < 0 < z.max(), "the fixture's floor should straddle the camera plane"
+    u0, u1, v0, v1, _ = _region(camera, pose, floor.vertices, floor.faces, enlarge=True)
+    assert 0 < (u1 - u0) * (v1 - v0) < 0.8 * 9 * W * H
+    u, v = (g.ravel() for g in np.meshgrid(np.arange(-W, 2 * W), np.arange(-H, 2 * H)))
+    hit = floor.hits(camera, pose, u, v)
+    depth, inst = seq.depth(0), seq.instance(0)
+    info, _ = gt_info_for(camera, pose, floor, inst == FLOOR, np.isfinite(depth), enlarge=True, depth=depth)
+    assert info["px_count_all"] == int(hit.sum()) > 0
+    hu, hv = u[hit], v[hit]
+    assert info["bbox_obj"] == [int(hu.min()), int(hv.min()), int(hu.max() - hu.min()), int(hv.max() - hv.min())]

@@ -99,23 +99,38 @@ def _bbox(xs: np.ndarray, ys: np.ndarray) -> list[int]:
     return [int(xs.min()), int(ys.min()), int(xs.max() - xs.min()), int(ys.max() - ys.min())]
 
 
-def _region(camera: Camera, cam_from_model: np.ndarray, vertices: np.ndarray, enlarge: bool) -> tuple:
+def _region(camera: Camera, cam_from_model: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+            enlarge: bool) -> tuple:
     """``(u0, u1, v0, v1, z_far)``: the pixel box worth casting, columns ``u0 <= u < u1`` and rows
-    ``v0 <= v < v1`` (the projected vertices' box, within the (enlarged) image; empty when ``u0 >= u1`` or
-    ``v0 >= v1``) and the largest camera z of the vertices (no ray meets the mesh beyond it)."""
+    ``v0 <= v < v1`` (the box of the mesh's projection, within the (enlarged) image; empty when ``u0 >= u1``
+    or ``v0 >= v1``) and the largest camera z of the vertices (no ray meets the mesh beyond it).
+
+    A mesh reaching behind the camera is clipped at ``z = NEAR`` first: each triangle's visible part is the
+    hull of its vertices in front and the points where its edges cross the plane, so the box of those
+    projected points (clamped: the crossings project very far out) bounds the silhouette. Without the
+    clipping such a mesh would cast the whole enlarged image, nine times the frame, for a few pixels."""
     w, h = camera.width, camera.height
     lo_u, hi_u, lo_v, hi_v = (-w, 2 * w, -h, 2 * h) if enlarge else (0, w, 0, h)
     pts = transform_points(cam_from_model, vertices)
-    z_far = float(pts[:, 2].max()) if len(pts) else np.inf
-    if len(pts) and np.all(pts[:, 2] > NEAR):
-        u = camera.fx * pts[:, 0] / pts[:, 2] + camera.cx
-        v = camera.fy * pts[:, 1] / pts[:, 2] + camera.cy
-        lo_u = max(lo_u, int(np.floor(u.min() - 0.5)) - 1)
-        hi_u = min(hi_u, int(np.ceil(u.max() - 0.5)) + 2)
-        lo_v = max(lo_v, int(np.floor(v.min() - 0.5)) - 1)
-        hi_v = min(hi_v, int(np.ceil(v.max() - 0.5)) + 2)
-    elif len(pts) and np.all(pts[:, 2] <= NEAR):
+    if len(pts) == 0 or len(faces) == 0:
+        return 0, 0, 0, 0, np.inf
+    z_far = float(pts[:, 2].max())
+    front = pts[:, 2] > NEAR
+    if not front.any():
         return 0, 0, 0, 0, z_far
+    used = pts[front]
+    if not front.all():
+        edges = np.asarray(faces, dtype=np.int64)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        edges = edges[front[edges[:, 0]] != front[edges[:, 1]]]
+        a, b = pts[edges[:, 0]], pts[edges[:, 1]]
+        s = (NEAR - a[:, 2]) / (b[:, 2] - a[:, 2])
+        used = np.concatenate([used, a + s[:, None] * (b - a)])
+    u = np.clip(camera.fx * used[:, 0] / used[:, 2] + camera.cx, -4.0 * w, 5.0 * w)
+    v = np.clip(camera.fy * used[:, 1] / used[:, 2] + camera.cy, -4.0 * h, 5.0 * h)
+    lo_u = max(lo_u, int(np.floor(u.min() - 0.5)) - 1)
+    hi_u = min(hi_u, int(np.ceil(u.max() - 0.5)) + 2)
+    lo_v = max(lo_v, int(np.floor(v.min() - 0.5)) - 1)
+    hi_v = min(hi_v, int(np.ceil(v.max() - 0.5)) + 2)
     return lo_u, hi_u, lo_v, hi_v, z_far
 
 
@@ -137,7 +152,7 @@ def gt_info_for(
     surface first, so a pixel whose visible surface lies beyond the object's farthest vertex misses it.
     Only the pixels these do not decide are ray cast (mostly those of occluders in front of the object)."""
     h, w = camera.height, camera.width
-    u0, u1, v0, v1, z_far = _region(camera, cam_from_model, silhouette.vertices, enlarge)
+    u0, u1, v0, v1, z_far = _region(camera, cam_from_model, silhouette.vertices, silhouette.faces, enlarge)
     full = visible.copy()
     out_x, out_y = np.zeros(0, np.int64), np.zeros(0, np.int64)
     if u0 < u1 and v0 < v1:
