@@ -10,8 +10,12 @@ from synthleak.localize.matching import match_features
 
 
 def _reference(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool) -> set[tuple[int, int]]:
-    """Lowe's test on true L2 distances with a full sort, written the slow obvious way."""
-    dist = np.sqrt(((a[:, None, :].astype(np.float64) - b[None].astype(np.float64)) ** 2).sum(-1))
+    """Lowe's test on true L2 (float) or Hamming (uint8) distances with a full sort, the slow obvious way."""
+    if a.dtype == np.uint8:
+        bits_a, bits_b = np.unpackbits(a, axis=1), np.unpackbits(b, axis=1)
+        dist = (bits_a[:, None, :] != bits_b[None]).sum(-1).astype(np.float64)
+    else:
+        dist = np.sqrt(((a[:, None, :].astype(np.float64) - b[None].astype(np.float64)) ** 2).sum(-1))
     out = set()
     for i, row in enumerate(dist):
         order = np.argsort(row, kind="stable")
@@ -46,3 +50,20 @@ def test_duplicate_descriptors_match_once_like_argmin() -> None:
     got = match_features(Features(np.zeros((20, 2)), a), Features(np.zeros((40, 2)), b), 0.8, True)
     assert {tuple(m) for m in got.tolist()} == _reference(a, b, 0.8, True)
     assert (4, 4) in {tuple(m) for m in got.tolist()} and 7 not in got[:, 0]
+
+
+@pytest.mark.parametrize(("ratio", "mutual"), [(0.75, True), (0.8, False), (0.0, True)])
+def test_binary_matcher_equals_reference(ratio: float, mutual: bool) -> None:
+    """Hamming distances from the +-1 BLAS product are exact: same matches as counting differing bits,
+    including ties (duplicated rows, small distances)."""
+    rng = np.random.default_rng(11)
+    b = rng.integers(0, 256, size=(150, 61), dtype=np.uint8)  # AKAZE's 488-bit descriptors
+    flips = rng.random((75, 61 * 8)) < 0.05
+    noisy = np.packbits(np.unpackbits(b[rng.permutation(150)[:75]], axis=1) ^ flips, axis=1)
+    a = np.concatenate([noisy, rng.integers(0, 256, size=(75, 61), dtype=np.uint8)])
+    a[10] = a[3]  # an exact tie for the mutual check
+    fa, fb = Features(np.zeros((150, 2)), a, binary=True), Features(np.zeros((150, 2)), b, binary=True)
+    got = match_features(fa, fb, ratio, mutual)
+    assert {tuple(m) for m in got.tolist()} == _reference(a, b, ratio, mutual)
+    if ratio == 0.75 and mutual:
+        assert len(got) >= 70
