@@ -419,3 +419,39 @@ def test_pyrender_coincident_surfaces_in_scene_order() -> None:
             assert np.all(frame.instance[4:20, 6:26] == first), (first, np.unique(frame.instance))
             red_wins = frame.rgb[12, 16, 0] > frame.rgb[12, 16, 2]
             assert red_wins == (first == 1), frame.rgb[12, 16]
+
+
+def test_pyrender_shadow_filter_matches_stock_shader() -> None:
+    """The 16-read shadow filter renders the image of pyrender's own 36-read filter (up to a grey level at
+    the odd pixel), and the shadows are there (a box on the floor, lit by a panel off to one side)."""
+    if not _has("pyrender"):
+        pytest.skip(BACKENDS["pyrender"][2])
+    from pyrender.shader_program import ShaderProgramCache
+
+    from synthleak.render import pyrender_backend as pb
+
+    scene = tiny_stage()
+    scene.meshes = scene.meshes[:2]  # the floor and box_a
+    scene.lights = [Light("panel", "rect", make_pose(np.eye(3), [-0.5, 1.3, 1.6]), intensity=150.0,
+                          size=(0.3, 0.3))]
+    cam = Camera.from_hfov(W, H, 70.0)
+    pose = look_at((0.0, -2.5, 3.0), (-0.4, 0.2, 0.0))
+    shadowed, flat = pb.PyrenderRenderer(shadows=True), pb.PyrenderRenderer(shadows=False)
+    renderer = pb._GL[0]._renderer
+    from pathlib import Path
+
+    assert "texel * vec2(float(x - 1)" in Path(renderer._program_cache.shader_dir, "mesh.frag").read_text()
+    shadowed.prepare(scene)
+    ours = shadowed.render(cam, pose, seed=0).rgb.astype(int)
+    patched_cache = renderer._program_cache
+    renderer._program_cache = ShaderProgramCache()  # pyrender's shaders
+    try:
+        shadowed.prepare(scene)
+        stock = shadowed.render(cam, pose, seed=0).rgb.astype(int)
+    finally:
+        renderer._program_cache = patched_cache
+    flat.prepare(scene)
+    unshadowed = flat.render(cam, pose, seed=0).rgb.astype(int)
+    assert np.abs(ours - stock).max() <= 1 and (ours != stock).any(-1).mean() < 0.005
+    darker = (unshadowed - ours).max(-1) > 20
+    assert darker.mean() > 0.02, f"shadow covers {darker.mean():.2%} of the image"
