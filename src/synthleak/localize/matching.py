@@ -8,14 +8,16 @@ from synthleak.localize.features import Features
 
 
 def squared_l2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(Na, Nb) float32 squared L2 distances: one BLAS product, then in-place updates (no temporaries)."""
+    """(Na, Nb) float32 squared L2 distances from one BLAS product of augmented rows,
+    ``[a, |a|^2, 1] . [-2 b, 1, |b|^2]``: no passes over the (Na, Nb) matrix besides the product itself.
+    Tiny negative values (rounding, for equal descriptors) are left as they are: the matcher only compares."""
     a = np.asarray(a, dtype=np.float32)
     b = np.asarray(b, dtype=np.float32)
-    dist = a @ b.T
-    dist *= -2.0
-    dist += np.einsum("ij,ij->i", a, a)[:, None]
-    dist += np.einsum("ij,ij->i", b, b)[None]
-    return np.maximum(dist, 0.0, out=dist)
+    left = np.empty((len(a), a.shape[1] + 2), dtype=np.float32)
+    left[:, :-2], left[:, -2], left[:, -1] = a, np.einsum("ij,ij->i", a, a), 1.0
+    right = np.empty((len(b), b.shape[1] + 2), dtype=np.float32)
+    right[:, :-2], right[:, -2], right[:, -1] = -2.0 * b, 1.0, np.einsum("ij,ij->i", b, b)
+    return left @ right.T
 
 
 def match_features(a: Features, b: Features, ratio: float, mutual: bool) -> np.ndarray:
@@ -40,6 +42,7 @@ def nearest_neighbours(dist: np.ndarray, ratio: float, mutual: bool) -> np.ndarr
         dist[rows, nn] = np.inf  # the row minimum after removing the best is the second best
         second = dist.min(axis=1)
         dist[rows, nn] = best
+        best, second = np.maximum(best, 0.0), np.maximum(second, 0.0)  # rounding below 0 counts as 0
         keep &= best < ratio * second
     if mutual:
         keep &= _is_column_argmin(dist, rows, nn)
