@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
 from typing import Any
+
+from synthleak.atomic_io import atomic_write_text
 
 MARKER = ".done.json"
 
@@ -37,12 +38,4 @@ def is_done(folder: Path, key: str) -> bool:
 def mark_done(folder: Path, key: str, **info: Any) -> None:
     """Record that ``folder`` holds the complete output for ``key`` (atomic write)."""
     folder.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(folder / MARKER, json.dumps({"key": key, **info}, sort_keys=True, indent=1))
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write text to a temporary name beside ``path`` and rename it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    atomic_write_text(folder / MARKER, json.dumps({"key": key, **info}, sort_keys=True, indent=1))

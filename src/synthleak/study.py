@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from synthleak.cache import cache_key, done_key, is_done, mark_done, write_text_atomic
+from synthleak.atomic_io import atomic_write_text
+from synthleak.cache import cache_key, done_key, is_done, mark_done
 from synthleak.config import StudyConfig, config_to_dict
 from synthleak.executors import Executor, LocalExecutor
 
@@ -187,7 +188,7 @@ def save_features(path: Path, features: Any, image_size: tuple[int, int]) -> Non
     """One image's features as ``.npz`` (exact arrays), written atomically."""
     import io
 
-    from synthleak.render.dataset import atomic_write_bytes
+    from synthleak.atomic_io import atomic_write_bytes
 
     buffer = io.BytesIO()
     arrays = {"keypoints": features.keypoints, "descriptors": features.descriptors,
@@ -363,7 +364,7 @@ def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, 
     _WORKER_CACHE.clear()
     for name, out, key, n_tasks in todo:
         lines = [line for _ in range(n_tasks) for line in next(results)]
-        write_text_atomic(logs[name], "\n".join(lines) + "\n")
+        atomic_write_text(logs[name], "\n".join(lines) + "\n")
         mark_done(out, key)
     return logs
 
@@ -598,8 +599,8 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
     genuine = genuine_localization(paths, logs)
     tradeoff = defense_tradeoff(defense_queries(logs), config.defense.sweep_fractions,
                                 config.defense.sweep_min_instances)
-    write_text_atomic(paths.results / "genuine_localization.json", json.dumps(genuine, indent=1))
-    write_text_atomic(paths.results / "defense_tradeoff.json", json.dumps(tradeoff, indent=1, default=str))
+    atomic_write_text(paths.results / "genuine_localization.json", json.dumps(genuine, indent=1))
+    atomic_write_text(paths.results / "defense_tradeoff.json", json.dumps(tradeoff, indent=1, default=str))
     plots = [plot_presence_pr(presence_pr_per_room(rows), paths.plots / "presence_pr.png"),
              plot_placement_cdfs(rows, paths.plots / "placement_cdf.png"),
              plot_defense_tradeoff(tradeoff, paths.plots / "defense_tradeoff.png"),
@@ -631,7 +632,7 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         "## Wall time per stage (this run; cached stages take ~0 s)\n",
         _markdown_table([{"stage": k, "seconds": v} for k, v in timings.items()], ["stage", "seconds"], 1),
     ]
-    write_text_atomic(paths.report, "\n".join(parts))
+    atomic_write_text(paths.report, "\n".join(parts))
     return paths.report
 
 
@@ -672,5 +673,5 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
     sweep_rows = timed("sweep", stage_sweep, config, paths, render_key, maps, forced, progress, server_url,
                        executor)
     report = timed("report", stage_report, config, paths, rows, logs, timings, sweep_rows)
-    write_text_atomic(paths.root / "timings.json", json.dumps(timings, indent=1))
+    atomic_write_text(paths.root / "timings.json", json.dumps(timings, indent=1))
     return report

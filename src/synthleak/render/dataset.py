@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,6 +15,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from synthleak.atomic_io import TEMP_PREFIX, atomic_write_bytes, atomic_write_text  # noqa: F401 - re-exported
 from synthleak.geometry.poses import (
     check_pose,
     invert,
@@ -26,34 +25,12 @@ from synthleak.geometry.poses import (
 )
 from synthleak.render.base import Camera, Frame, InstanceInfo
 
-TEMP_PREFIX = ".tmp-"
-
-
 BOP_DEPTH_SCALE = 0.25
 """BOP 16-bit depth PNGs hold depth_mm / BOP_DEPTH_SCALE: 0.25 mm steps up to 16.4 m (0.1 would stop at 6.5 m)."""
 
 
 class DatasetError(ValueError):
     """A malformed dataset file; the message names the file and the field."""
-
-
-# ----------------------------------------------------------------------------------------------- atomic io
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file in the same folder, then ``os.replace`` it onto ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX + path.name + ".", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    atomic_write_bytes(path, text.encode("utf-8"))
 
 
 def _plain(value: Any) -> Any:
