@@ -250,3 +250,33 @@ def test_plots_write_pngs(tmp_path):
         assert _is_png(path), path
     again = plots.plot_room_topdown((5.0, 4.0, 2.6), objects, estimates, cams, tmp_path / "room2.png")
     assert again.read_bytes() == paths[-1].read_bytes()
+
+
+def test_recall_funnel_counts_each_step() -> None:
+    """Present pairs only, one per (tier, room, object) at the first aligner/thresholds; each step counted."""
+    from synthleak.evaluate.tables import recall_funnel, recall_funnel_markdown
+    from synthleak.study import _server_funnel
+
+    records = [  # one pair's query log: 3 sent, 2 localized, 1 of them mostly on instance 7
+        {"success": True, "inlier_instance_counts": {"7": 40, "3": 12}},
+        {"success": True, "inlier_instance_counts": {"3": 30, "7": 30}},  # tie: the lower id wins, not 7
+        {"success": False, "inlier_instance_counts": {}},
+    ]
+    assert _server_funnel(records, 7, {7: 120, 3: 50}) == {"map_points_on_target": 120, "n_target_top": 1}
+    assert _server_funnel(records, 7, None) == {"map_points_on_target": None, "n_target_top": 1}
+    assert _server_funnel(records, None, {7: 1}) == {"map_points_on_target": None, "n_target_top": None}
+
+    def row(obj, present, points, localized, top, decision, aligner="alg1", magnitude=None):
+        return {"tier": "sift", "room": "r0", "object": obj, "aligner": aligner, "delta_r_deg": 10.0,
+                "delta_t_m": 0.25, "present_gt": present, "map_points_on_target": points, "n_queries": 10,
+                "n_localized": localized, "n_target_top": top, "decision": decision, "magnitude": magnitude}
+
+    rows = [row("a", True, 300, 4, 3, True), row("b", True, 0, 0, 0, False), row("c", True, 80, 2, 0, False),
+            row("d", False, None, 1, None, True),                     # absent pair: not counted
+            row("a", True, 300, 4, 3, False, aligner="robust"),       # other aligner: not counted twice
+            row("e", True, 50, 5, 5, True, magnitude=0.25)]           # variant sweep row: left out
+    (funnel,) = recall_funnel(rows)
+    assert funnel["present pairs"] == 3 and funnel["object in map"] == 2 and funnel["median map points"] == 80
+    assert funnel["a query localized"] == 2 and funnel["localized on the object"] == 1
+    assert funnel["queries localized"] == "6/30" and funnel["decided present (alg1, 10°, 0.25m)"] == 1
+    assert "| sift | 3 | 2 | 80 | 2 | 1 | 6/30 | 1 |" in recall_funnel_markdown(rows)

@@ -390,6 +390,32 @@ def _attacker_local_model(config: StudyConfig, sfm_root: Path, obj_id: str, seq:
     raise ValueError(f"attack.local_model: unknown value {config.attack.local_model!r} (oracle, sfm)")
 
 
+def _map_points_per_instance(map_dir: Path) -> dict[int, int] | None:
+    """Number of the map's 3D points per instance id (``points_instance.json``), or None without a local map
+    (a study against a remote server)."""
+    path = map_dir / "points_instance.json"
+    if not path.is_file():
+        return None
+    counts: dict[int, int] = {}
+    for instance in json.loads(path.read_text()).values():
+        counts[int(instance)] = counts.get(int(instance), 0) + 1
+    return counts
+
+
+def _server_funnel(records: list[dict[str, Any]], gt_id: int | None, points: dict[int, int] | None
+                   ) -> dict[str, int | None]:
+    """Where a present pair's queries get lost on the server: the map's 3D points on the room's instance,
+    and the localized queries whose PnP inliers lie mostly on it (None for absent pairs)."""
+    if gt_id is None:
+        return {"map_points_on_target": None, "n_target_top": None}
+    top = 0
+    for q in records:
+        counts = q.get("inlier_instance_counts") or {}
+        if q["success"] and counts and max(counts, key=lambda k: (counts[k], -int(k))) == str(gt_id):
+            top += 1
+    return {"map_points_on_target": None if points is None else points.get(int(gt_id), 0), "n_target_top": top}
+
+
 def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, str], Path],
                 attacker_dataset: Path | None = None, magnitude: float | None = None, kind: str | None = None
                 ) -> list[dict[str, Any]]:
@@ -408,6 +434,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
     for name, log in logs.items():
         for q in read_query_log(log):
             by_object.setdefault(name, {}).setdefault(q["attacker_object"], []).append(q)
+    map_points = {name: _map_points_per_instance(paths.maps / name[0] / name[1]) for name in logs}
     rows: list[dict[str, Any]] = []
     for obj in index["attacker_objects"]:
         seq = load_sequence(attacker_dataset / "attackers" / obj["id"])
@@ -421,6 +448,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
             local_sent = {f: p for f, p in local.items() if f in sent}
             gt_id = obj.get("present_in", {}).get(room)
             gt = rooms[room].get(gt_id) if gt_id is not None else None
+            funnel = _server_funnel(records, gt_id if gt is not None else None, map_points[(tier, room)])
             for aligner in config.attack.aligners:
                 for delta_r, delta_t in config.attack.thresholds:
                     alignment = run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(sent))
@@ -434,7 +462,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
                         "category": target.category, "tier": tier, "aligner": aligner,
                         "delta_r_deg": float(delta_r), "delta_t_m": float(delta_t), "present_gt": gt is not None,
                         "eps": float(alignment.eps), "decision": False, "n_queries": len(sent),
-                        "n_localized": len(server), **score, "magnitude": magnitude, "kind": kind,
+                        "n_localized": len(server), **funnel, **score, "magnitude": magnitude, "kind": kind,
                     })
     return apply_presence_decisions(rows)
 
@@ -591,6 +619,7 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
     from synthleak.evaluate.tables import (
         placement_summary,
         presence_pr_per_room,
+        recall_funnel_markdown,
         table1_markdown,
         table2_markdown,
     )
@@ -621,6 +650,8 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         table1_markdown(rows),
         "## Presence per object (paper appendix table shape)\n",
         table2_markdown(rows),
+        "## Where presence is lost (GT-present pairs, server side)\n",
+        recall_funnel_markdown(rows),
         "## Placement against ground truth\n",
         placement_summary(rows, config.attack.thresholds),
         "## Defense trade-off (paper Fig. 6, exact instance labels)\n",

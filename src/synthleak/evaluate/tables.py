@@ -24,8 +24,8 @@ from synthleak.evaluate.metrics import DEFAULT_THRESHOLDS
 
 COLUMNS: tuple[str, ...] = (
     "room", "object", "model_id", "category", "tier", "aligner", "delta_r_deg", "delta_t_m", "present_gt",
-    "eps", "decision", "n_queries", "n_localized", "rot_err_deg", "trans_err_m", "iou3d",
-    "scene_from_object_est", "magnitude", "kind",
+    "eps", "decision", "n_queries", "n_localized", "n_target_top", "map_points_on_target", "rot_err_deg",
+    "trans_err_m", "iou3d", "scene_from_object_est", "magnitude", "kind",
 )
 """Stable column order of the results files; extra keys follow, sorted."""
 
@@ -246,6 +246,46 @@ def _plain(value: Any) -> Any:
         value = float(value)
         return float(f"{value:.10g}") if math.isfinite(value) else None
     return value
+
+
+def recall_funnel(rows: Sequence[dict]) -> list[dict[str, Any]]:
+    """Per tier, the GT-present pairs step by step: the object has 3D points in the room's map, at least one
+    attacker query localizes, one localizes with most PnP inliers on the object, the pair is decided present
+    (first aligner and thresholds of the rows). Rows of variant sweeps (``magnitude`` set) are left out."""
+    main = [r for r in rows if r.get("present_gt") and r.get("magnitude") is None]
+    if not main:
+        return []
+    first = main[0]
+    config = (first["aligner"], first["delta_r_deg"], first["delta_t_m"])
+    out = []
+    for (tier,), group in _group(main, ["tier"]).items():
+        pairs = [r for r in group if (r["aligner"], r["delta_r_deg"], r["delta_t_m"]) == config]
+        points = [r.get("map_points_on_target") for r in pairs]
+        out.append({
+            "tier": tier,
+            "present pairs": len(pairs),
+            "object in map": sum(1 for p in points if p),
+            "median map points": float(np.median([p for p in points if p is not None])) if any(
+                p is not None for p in points) else math.nan,
+            "a query localized": sum(1 for r in pairs if r["n_localized"] > 0),
+            "localized on the object": sum(1 for r in pairs if (r.get("n_target_top") or 0) > 0),
+            "queries localized": f"{sum(r['n_localized'] for r in pairs)}/{sum(r['n_queries'] for r in pairs)}",
+            f"decided present ({config[0]}, {config[1]:g}°, {config[2]:g}m)": sum(1 for r in pairs if r["decision"]),
+        })
+    return out
+
+
+def recall_funnel_markdown(rows: Sequence[dict]) -> str:
+    """:func:`recall_funnel` as a markdown table (an explanatory line when there are no present pairs)."""
+    funnel = recall_funnel(rows)
+    if not funnel:
+        return "No GT-present pairs.\n"
+    columns = list(funnel[0])
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    for row in funnel:
+        cells = [_fmt(v, 0) if isinstance(v, float) else str(v) for v in (row[c] for c in columns)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def ordered_columns(rows: Sequence[dict]) -> list[str]:
