@@ -8,6 +8,7 @@ threshold re-runs only the attack and the report, and changing a tier does not r
 from __future__ import annotations
 
 import json
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from synthleak.atomic_io import atomic_write_text
+from synthleak.atomic_io import atomic_write_bytes, atomic_write_text
 from synthleak.cache import cache_key, done_key, is_done, mark_done
 from synthleak.config import StudyConfig, config_to_dict
 from synthleak.executors import Executor, LocalExecutor
@@ -187,8 +188,6 @@ def _features_path(root: Path, tier: str, item: dict[str, Any]) -> Path:
 def save_features(path: Path, features: Any, image_size: tuple[int, int]) -> None:
     """One image's features as ``.npz`` (exact arrays), written atomically."""
     import io
-
-    from synthleak.atomic_io import atomic_write_bytes
 
     buffer = io.BytesIO()
     arrays = {"keypoints": features.keypoints, "descriptors": features.descriptors,
@@ -396,10 +395,7 @@ def _map_points_per_instance(map_dir: Path) -> dict[int, int] | None:
     path = map_dir / "points_instance.json"
     if not path.is_file():
         return None
-    counts: dict[int, int] = {}
-    for instance in json.loads(path.read_text()).values():
-        counts[int(instance)] = counts.get(int(instance), 0) + 1
-    return counts
+    return dict(Counter(int(instance) for instance in json.loads(path.read_text()).values()))
 
 
 def _server_funnel(records: list[dict[str, Any]], gt_id: int | None, points: dict[int, int] | None
@@ -553,17 +549,6 @@ def defense_queries(logs: dict[tuple[str, str], Path]) -> list[dict[str, Any]]:
             for _, log in sorted(logs.items()) for q in read_query_log(log)]
 
 
-def _markdown_table(rows: list[dict[str, Any]], columns: list[str], digits: int = 3) -> str:
-    def cell(value: Any) -> str:
-        if isinstance(value, float):
-            return "–" if np.isnan(value) else f"{value:.{digits}f}"
-        return str(value)
-
-    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    lines += ["| " + " | ".join(cell(r.get(c)) for c in columns) + " |" for r in rows]
-    return "\n".join(lines) + "\n"
-
-
 def _room_plots(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]]) -> list[Path]:
     """Top-down map per room: GT boxes and the estimates the attack decided present (first tier, last
     aligner, middle thresholds)."""
@@ -599,6 +584,7 @@ def _sweep_section(sweep_rows: list[dict[str, Any]], paths: StudyPaths, plots: l
     if not sweep_rows:
         return []
     from synthleak.evaluate.plots import leakage_vs_magnitude, plot_leakage_vs_magnitude
+    from synthleak.evaluate.tables import markdown_table
 
     plots.append(plot_leakage_vs_magnitude(sweep_rows, paths.plots / "leakage_vs_magnitude.png"))
     stats = leakage_vs_magnitude(sweep_rows)
@@ -607,7 +593,7 @@ def _sweep_section(sweep_rows: list[dict[str, Any]], paths: StudyPaths, plots: l
     return ["## Leakage against dissimilarity (attacker variant magnitude sweep)\n",
             "Presence precision/recall and placement success at 30°/0.5 m for attacker objects made with "
             "growing variant magnitude (colour, scale, shape, each alone and together).\n",
-            _markdown_table(stats, columns)]
+            markdown_table(stats, columns)]
 
 
 def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]],
@@ -617,6 +603,7 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
     from synthleak.evaluate.defense_sweep import defense_tradeoff
     from synthleak.evaluate.plots import plot_defense_tradeoff, plot_placement_cdfs, plot_presence_pr
     from synthleak.evaluate.tables import (
+        markdown_table,
         placement_summary,
         presence_pr_per_room,
         recall_funnel_markdown,
@@ -645,7 +632,7 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         f"tiers {', '.join(config.localize.tiers)}; aligners {', '.join(config.attack.aligners)}; "
         f"local model {config.attack.local_model}.\n",
         "## Genuine queries (held-out walk-through frames)\n",
-        _markdown_table(genuine, ["tier", "room", "n", "localized", "median_rot_err_deg", "median_trans_err_m"]),
+        markdown_table(genuine, ["tier", "room", "n", "localized", "median_rot_err_deg", "median_trans_err_m"]),
         "## Presence (paper Table 1 shape)\n",
         table1_markdown(rows),
         "## Presence per object (paper appendix table shape)\n",
@@ -655,13 +642,13 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         "## Placement against ground truth\n",
         placement_summary(rows, config.attack.thresholds),
         "## Defense trade-off (paper Fig. 6, exact instance labels)\n",
-        _markdown_table([t for t in tradeoff if t.get("tier") == "all"],
+        markdown_table([t for t in tradeoff if t.get("tier") == "all"],
                         [k for k in (tradeoff[0] if tradeoff else {}) if k != "tier"]),
         *_sweep_section(sweep_rows or [], paths, plots),
         "## Plots\n",
         "\n".join(f"![{p.stem}](plots/{p.name})" for p in plots) + "\n",
         "## Wall time per stage (this run; cached stages take ~0 s)\n",
-        _markdown_table([{"stage": k, "seconds": v} for k, v in timings.items()], ["stage", "seconds"], 1),
+        markdown_table([{"stage": k, "seconds": v} for k, v in timings.items()], ["stage", "seconds"], 1),
     ]
     atomic_write_text(paths.report, "\n".join(parts))
     return paths.report

@@ -280,11 +280,18 @@ def recall_funnel_markdown(rows: Sequence[dict]) -> str:
     funnel = recall_funnel(rows)
     if not funnel:
         return "No GT-present pairs.\n"
-    columns = list(funnel[0])
+    return markdown_table(funnel, list(funnel[0]), digits=0)
+
+
+def markdown_table(rows: Sequence[dict], columns: Sequence[str], digits: int = 3) -> str:
+    """A markdown table, one line per row; floats with ``digits`` decimals, NaN as "–"."""
+    def cell(value: Any) -> str:
+        if isinstance(value, float):
+            return "–" if math.isnan(value) else f"{value:.{digits}f}"
+        return str(value)
+
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    for row in funnel:
-        cells = [_fmt(v, 0) if isinstance(v, float) else str(v) for v in (row[c] for c in columns)]
-        lines.append("| " + " | ".join(cells) + " |")
+    lines += ["| " + " | ".join(cell(r.get(c)) for c in columns) + " |" for r in rows]
     return "\n".join(lines) + "\n"
 
 

@@ -17,8 +17,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from synthleak.atomic_io import atomic_write_bytes
 from synthleak.geometry.poses import make_pose, transform_points
-from synthleak.render.dataset import DatasetError, Sequence, atomic_write_bytes, encode_png, load_sequence
+from synthleak.render.dataset import DatasetError, Sequence, encode_png, load_sequence
 
 BAR_W = 44
 """Width in pixels of the depth scale bar appended to the depth panel."""

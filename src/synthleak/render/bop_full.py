@@ -28,13 +28,12 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from synthleak.atomic_io import atomic_write_bytes, atomic_write_text
 from synthleak.geometry.poses import invert, make_pose, transform_points
 from synthleak.render.base import Camera, RenderScene
 from synthleak.render.dataset import (
     DatasetError,
-    atomic_write_bytes,
     atomic_write_json,
-    atomic_write_text,
     encode_png,
     load_sequence,
     read_json,

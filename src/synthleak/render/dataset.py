@@ -15,7 +15,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from synthleak.atomic_io import TEMP_PREFIX, atomic_write_bytes, atomic_write_text  # noqa: F401 - re-exported
+from synthleak.atomic_io import TEMP_PREFIX, atomic_write_bytes, atomic_write_text
 from synthleak.geometry.poses import (
     check_pose,
     invert,
