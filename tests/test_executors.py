@@ -15,7 +15,14 @@ from pathlib import Path
 
 import pytest
 
-from synthleak.executors import ExecutorError, LocalExecutor, chunks, make_executor, threads_per_worker
+from synthleak.executors import (
+    ExecutorError,
+    LocalExecutor,
+    chunks,
+    make_executor,
+    threads_per_worker,
+    worker_thread_cap,
+)
 
 
 def _slow_square(x: int) -> int:
@@ -41,12 +48,12 @@ def test_local_executor_names_the_failed_task() -> None:
         pool.map(_fail_on_three, range(6))
 
 
-def _thread_settings(_: int) -> tuple[str | None, int]:
+def _thread_settings(_: int) -> tuple[str | None, int, int | None]:
     import numpy  # noqa: F401  (loads BLAS in the worker)
     from threadpoolctl import threadpool_info
 
     blas = [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
-    return os.environ.get("LP_NUM_THREADS"), max(blas) if blas else 1
+    return os.environ.get("LP_NUM_THREADS"), max(blas) if blas else 1, worker_thread_cap()
 
 
 def test_pool_workers_share_the_cores_instead_of_each_taking_all() -> None:
@@ -54,7 +61,8 @@ def test_pool_workers_share_the_cores_instead_of_each_taking_all() -> None:
         settings = pool.map(_thread_settings, range(4))
     expected = threads_per_worker(2)
     assert expected == max(1, (os.cpu_count() or 1) // 2)
-    assert all(lp == str(expected) and blas <= expected for lp, blas in settings)
+    assert all(lp == str(expected) and blas <= expected and cap == expected for lp, blas, cap in settings)
+    assert worker_thread_cap() is None  # the driver keeps every core (mitsuba's pool reads this cap)
 
 
 _SIGTERM_SCRIPT = """

@@ -29,6 +29,7 @@ unsafe; spawn costs ~1-2 s of imports per worker, once per pool)."""
 
 THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "LP_NUM_THREADS")
 """Thread-count variables of the libraries a worker loads (BLAS, OpenMP, Mesa's llvmpipe)."""
+WORKER_THREADS_ENV = "SYNTHLEAK_WORKER_THREADS"
 
 
 def limit_worker_threads(threads: int) -> None:
@@ -37,11 +38,18 @@ def limit_worker_threads(threads: int) -> None:
     for BLAS/OpenMP already loaded. With N workers on C cores each gets C // N, so N workers that each
     spread a matrix product or a raster over all cores do not fight over them. Results do not change."""
     threads = max(1, int(threads))
-    for name in THREAD_ENV:
+    for name in (*THREAD_ENV, WORKER_THREADS_ENV):
         os.environ[name] = str(threads)
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(threads)
+
+
+def worker_thread_cap() -> int | None:
+    """The cap :func:`limit_worker_threads` set in this process (None outside workers): for libraries that
+    take their thread count from a call rather than the environment (drjit/mitsuba)."""
+    value = os.environ.get(WORKER_THREADS_ENV)
+    return max(1, int(value)) if value and value.isdigit() else None
 
 
 def threads_per_worker(workers: int) -> int:
@@ -175,7 +183,7 @@ class RayExecutor(Executor):
             env = {k: os.environ[k] for k in ("PYOPENGL_PLATFORM",) if k in os.environ}
             # one task per CPU: cap each task's native thread pools accordingly (unless the user set them)
             threads = str(max(1, int(num_cpus_per_task)))
-            env |= {k: threads for k in THREAD_ENV if k not in os.environ}
+            env |= {k: threads for k in (*THREAD_ENV, WORKER_THREADS_ENV) if k not in os.environ}
             if env:
                 kwargs["runtime_env"] = {"env_vars": env}
             ray.init(**kwargs)

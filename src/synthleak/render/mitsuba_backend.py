@@ -1,4 +1,5 @@
-"""mitsuba 3 (``scalar_rgb`` only) photoreal RGB; depth and instance ids come from :mod:`raycast`.
+"""mitsuba 3 photoreal RGB (``scalar_rgb``, or the vectorised ``llvm_ad_rgb``); depth and instance ids come
+from :mod:`raycast`.
 
 The scene is built in memory: ``mi.Mesh`` objects filled from arrays, ``bitmap`` textures from uint8 sRGB
 arrays (two-sided principled BSDFs), sphere lights as ``point`` emitters, distant lights as ``directional``
@@ -9,16 +10,32 @@ reconstruction filter and a ``multijitter`` sampler seeded per frame make render
 
 from __future__ import annotations
 
+import glob
+import os
+import re
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
+from synthleak.executors import worker_thread_cap
 from synthleak.render.base import Camera, Frame, RenderMesh, RenderScene
 from synthleak.render.raycast import RaycastGT, pixel_rays
 from synthleak.scene.spec import Light
 
 VARIANT = "scalar_rgb"
+"""The default variant: runs anywhere the wheel installs."""
+VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
+LLVM_MIN_VERSION = 16
+"""drjit's LLVM backend aborts the process with Debian 12's LLVM 15 (measured); LLVM 19 works (measured)."""
+_LLVM_GLOBS = (
+    "/usr/lib/x86_64-linux-gnu/libLLVM*.so*",
+    "/usr/lib/aarch64-linux-gnu/libLLVM*.so*",
+    "/usr/lib/llvm-*/lib/libLLVM*.so*",
+    "/usr/lib64/libLLVM*.so*",
+)
+EACH_LIGHT = "synthleak_each_light"
+"""Name of the one-pass integrator registered for the LLVM variant (see :func:`_register_each_light`)."""
 SAMPLER = "multijitter"
 """Seeded like ``independent`` but stratified: at 4 spp it halves the seed-to-seed anti-aliasing noise
 (0.33 vs 0.71 levels) and raises SIFT keypoint repeatability across seeds from 69% to 79% (measured,
@@ -27,14 +44,78 @@ SAMPLER = "multijitter"
 _CV_TO_MI = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
-def _mitsuba() -> Any:
+def _llvm_version(path: str) -> int | None:
+    match = re.search(r"libLLVM[-.]?(?:so\.)?(\d+)", os.path.basename(path)) or re.search(r"llvm-(\d+)", path)
+    return int(match.group(1)) if match else None
+
+
+def find_libllvm() -> str:
+    """Path of the LLVM shared library for drjit's LLVM backend: ``DRJIT_LIBLLVM_PATH`` if set, else the newest
+    ``libLLVM`` of version >= :data:`LLVM_MIN_VERSION` in the system library folders. Raises ImportError with
+    the fix when there is none (drjit itself would pick any version and abort the process on LLVM 15)."""
+    given = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if given:
+        if not os.path.isfile(given):
+            raise ImportError(f"DRJIT_LIBLLVM_PATH={given!r}: no such file (the LLVM shared library, version "
+                              f">= {LLVM_MIN_VERSION})")
+        return given
+    found = [(v, p) for pattern in _LLVM_GLOBS for p in glob.glob(pattern) if (v := _llvm_version(p)) is not None]
+    usable = sorted(vp for vp in found if vp[0] >= LLVM_MIN_VERSION)
+    if not usable:
+        seen = ", ".join(sorted({p for _, p in found})) or "none"
+        raise ImportError(
+            f"render.mitsuba_variant 'llvm_ad_rgb' needs the LLVM shared library, version >= {LLVM_MIN_VERSION} "
+            f"(found: {seen}); on Debian 12: apt-get install libllvm19, or set DRJIT_LIBLLVM_PATH, or use "
+            f"mitsuba_variant = 'scalar_rgb'"
+        )
+    return usable[-1][1]
+
+
+def _mitsuba(variant: str = VARIANT) -> Any:
+    if variant not in VARIANTS:
+        raise ValueError(f"render.mitsuba_variant: {variant!r} is not one of {', '.join(VARIANTS)}")
     try:
         import mitsuba as mi
     except ImportError as exc:  # pragma: no cover - depends on the environment
         raise ImportError("renderer 'mitsuba' needs mitsuba 3: pip install 'mitsuba>=3.5'") from exc
-    if mi.variant() != VARIANT:
-        mi.set_variant(VARIANT)
+    if mi.variant() != variant:
+        if variant.startswith("llvm"):
+            os.environ["DRJIT_LIBLLVM_PATH"] = find_libllvm()  # read when drjit first starts its LLVM backend
+        mi.set_variant(variant)
+        if variant.startswith("llvm"):
+            _register_each_light(mi)
     return mi
+
+
+def _register_each_light(mi: Any) -> None:
+    """Register :data:`EACH_LIGHT`: the ``direct`` integrator's job for delta lights, without its noise.
+
+    For every camera sample it intersects once, adds the radiance of an emissive surface hit, then adds
+    every delta emitter's (point, directional) contribution with its own shadow ray and BSDF evaluation.
+    Summing all lights per sample (mitsuba's ``direct`` picks one at random per sample) leaves no light-
+    selection noise, and one primary intersection serves every light (the per-light passes of the scalar
+    variant trace it once per pass). Emissive meshes glow where seen but light nothing (non-delta emitters
+    are skipped), as in the scalar variant's later passes; a miss is black (no environment emitter)."""
+
+    class EachLight(mi.SamplingIntegrator):
+        def sample(self, scene, sampler, ray, medium=None, active=True):  # noqa: ANN001, ANN201
+            si = scene.ray_intersect(ray, active)
+            valid = active & si.is_valid()
+            result = mi.Spectrum(si.emitter(scene, valid).eval(si, valid))
+            bsdf, ctx = si.bsdf(ray), mi.BSDFContext()
+            for emitter in scene.emitters():
+                if not mi.has_flag(emitter.flags(), mi.EmitterFlags.Delta):
+                    continue
+                ds, weight = emitter.sample_direction(si, mi.Point2f(0.5, 0.5), valid)
+                lit = valid & (ds.pdf != 0.0)
+                lit &= ~scene.ray_test(si.spawn_ray_to(ds.p), lit)
+                result[lit] += bsdf.eval(ctx, si, si.to_local(ds.d), lit) * weight
+            return result, valid, []
+
+        def aov_names(self):  # noqa: ANN201
+            return []
+
+    mi.register_integrator(EACH_LIGHT, lambda props: EachLight(props))
 
 
 def linear_to_srgb_uint8(rgb: np.ndarray) -> np.ndarray:
@@ -181,7 +262,8 @@ def _ambient_directions() -> tuple[np.ndarray, float]:
 
 
 def _transform(matrix: np.ndarray) -> Any:
-    mi = _mitsuba()
+    import mitsuba as mi  # the variant is set by the caller
+
     return mi.ScalarTransform4f(np.asarray(matrix, dtype=np.float64).tolist())
 
 
@@ -196,6 +278,12 @@ class MitsubaRenderer:
     sees that direction. ``lighting="physical"`` uses rectangle area emitters and a ``constant``
     environment in one pass: softer, more faithful shadows, but Monte Carlo grain that SIFT detects as
     spurious features.
+
+    ``variant="llvm_ad_rgb"`` renders the same scene description vectorised (drjit's LLVM backend). With
+    ``direct`` + deterministic lighting it renders all lights in one pass with :data:`EACH_LIGHT` instead of
+    one pass per light (same image up to anti-aliasing samples; no dark-pass test needed). Each variant is
+    bitwise deterministic on its own (also across thread counts, measured); the two give different bytes.
+    A worker's thread cap (:func:`synthleak.executors.worker_thread_cap`) caps mitsuba's thread pool.
     """
 
     name = "mitsuba"
@@ -207,6 +295,7 @@ class MitsubaRenderer:
         max_depth: int = 3,
         filter: str = "box",
         lighting: str = "deterministic",
+        variant: str = VARIANT,
     ) -> None:
         if lighting not in ("deterministic", "physical"):
             raise ValueError(f"lighting: {lighting!r} is not 'deterministic' or 'physical'")
@@ -218,9 +307,20 @@ class MitsubaRenderer:
             raise ValueError(f"render.spp: must be >= 1, got {spp}")
         self.lighting = lighting
         self.spp, self.integrator, self.max_depth, self.filter = spp, integrator, max_depth, filter
-        self._mi = _mitsuba()
+        self.variant = variant
+        self._mi = _mitsuba(variant)
+        cap = worker_thread_cap()
+        if cap is not None:
+            import drjit as dr
+
+            dr.set_thread_count(cap)
         self._scenes: list[Any] = []
         self._gt: RaycastGT | None = None
+
+    @property
+    def one_pass(self) -> bool:
+        """All lights in one pass with :data:`EACH_LIGHT` (LLVM variant, ``direct``, deterministic lighting)."""
+        return self.variant != "scalar_rgb" and self.integrator == "direct" and self.lighting == "deterministic"
 
     def _light_groups(self, scene: RenderScene) -> list[tuple[list[dict[str, Any]], np.ndarray | None]]:
         """Emitter dicts grouped into render passes, each with its fill direction (None: a scene light)."""
@@ -246,10 +346,14 @@ class MitsubaRenderer:
 
     def prepare(self, scene: RenderScene) -> None:
         """Convert the scene once: the ray-cast BVH for ground truth, then one mitsuba scene per pass."""
-        mi = self._mi
+        mi = self._mi = _mitsuba(self.variant)
         self._gt = RaycastGT(scene.meshes)
-        if self.integrator == "direct":
-            integrator: dict[str, Any] = {"type": "direct"}
+        groups = self._light_groups(scene)
+        if self.one_pass:
+            integrator: dict[str, Any] = {"type": EACH_LIGHT}
+            groups = [([emitter for group, _ in groups for emitter in group], None)]
+        elif self.integrator == "direct":
+            integrator = {"type": "direct"}
         else:
             integrator = {"type": "path", "max_depth": int(self.max_depth)}
         dummy = self._sensor(Camera(8, 8, 8.0, 8.0, 4.0, 4.0), np.eye(4))
@@ -261,7 +365,7 @@ class MitsubaRenderer:
             for i, mesh in enumerate(scene.meshes)
             if mesh.emissive is not None and max(mesh.emissive) > 0
         }
-        for k, (group, direction) in enumerate(self._light_groups(scene) or [([], None)]):
+        for k, (group, direction) in enumerate(groups or [([], None)]):
             base: dict[str, Any] = {"type": "scene", "integrator": integrator, "sensor": dummy, **shapes}
             if k > 0:
                 base.update(dark)
@@ -324,7 +428,7 @@ class MitsubaRenderer:
         """sRGB uint8 (H, W, 3) from mitsuba alone (``skip``: pass indices known to contribute nothing)."""
         if not self._scenes:
             raise RuntimeError("MitsubaRenderer.render before prepare(scene)")
-        mi = self._mi
+        mi = self._mi = _mitsuba(self.variant)
         sensor = mi.load_dict(self._sensor(camera, cam_from_world))
         total = np.zeros((camera.height, camera.width, 3))
         for k, scene in enumerate(self._scenes):  # passes sum linearly; each gets its own sample stream

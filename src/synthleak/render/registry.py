@@ -12,7 +12,7 @@ RendererFactory = Callable[[RenderConfig], Renderer]
 
 _FACTORIES: dict[str, RendererFactory] = {}
 _INSTALL_HINTS: dict[str, str] = {
-    "mitsuba": "pip install 'mitsuba>=3.5' (variant scalar_rgb)",
+    "mitsuba": "pip install 'mitsuba>=3.5' (variant scalar_rgb; llvm_ad_rgb also needs libLLVM >= 16)",
     "pyrender": "apt-get install libegl1 libgl1-mesa-dri; pip install -e '.[pyrender]'; PYOPENGL_PLATFORM=egl",
     "blender": "pip install -e '.[blender]' in a separate Python 3.11 venv (bpy pins numpy<2)",
 }
@@ -42,7 +42,11 @@ def _mitsuba(config: RenderConfig) -> Renderer:
     from synthleak.render.mitsuba_backend import MitsubaRenderer
 
     return MitsubaRenderer(
-        spp=config.spp, integrator=config.integrator, max_depth=config.max_depth, filter=config.filter
+        spp=config.spp,
+        integrator=config.integrator,
+        max_depth=config.max_depth,
+        filter=config.filter,
+        variant=config.mitsuba_variant,
     )
 
 
