@@ -7,7 +7,8 @@ The room: a 5 x 4 x 2.6 m shell (textured floor, walls, ceiling) and 20 boxes / 
 two sphere lights and a rect light, ambient fill. Each backend renders full frames (RGB + z-depth +
 instance ids) from cameras inside the room; ``prepare`` and the first (warm-up) frame are timed apart.
 mitsuba runs its ``direct`` integrator at ``--mitsuba-spp`` (default 16) as the reference for the ratio
-(its default lighting, one pass per light, and, where the backend offers it, ``lighting="physical"``).
+(its default lighting, one pass per light, and, where the backend offers it, ``lighting="physical"`` and the
+vectorised ``llvm_ad_rgb`` variant, which needs libLLVM >= 16).
 """
 
 from __future__ import annotations
@@ -110,6 +111,14 @@ def _factories(mitsuba_spp: int, spp: int) -> dict[str, tuple[str, Callable[[], 
 
         if "lighting" in inspect.signature(MitsubaRenderer).parameters:  # one pass, all emitters at once
             factories[f"mitsuba direct {mitsuba_spp} physical"] = ("mitsuba", mitsuba(lighting="physical"))
+        if "variant" in inspect.signature(MitsubaRenderer).parameters:  # vectorised, all lights in one pass
+            from synthleak.render.mitsuba_backend import find_libllvm
+
+            try:
+                find_libllvm()
+                factories[f"mitsuba llvm direct {mitsuba_spp} spp"] = ("mitsuba", mitsuba(variant="llvm_ad_rgb"))
+            except ImportError as exc:
+                print(f"mitsuba llvm_ad_rgb skipped: {exc}")
     return factories
 
 

@@ -122,3 +122,18 @@ def test_find_libllvm_names_the_fix(tmp_path, monkeypatch) -> None:
 def test_unknown_variant_names_the_config_field() -> None:
     with pytest.raises(ValueError, match="render.mitsuba_variant.*cuda_rgb"):
         MitsubaRenderer(variant="cuda_rgb")
+
+
+def test_missing_llvm_is_a_clear_renderer_error(tmp_path, monkeypatch) -> None:
+    """A config asking for llvm_ad_rgb on a machine without libLLVM >= 16 gets the fix, not a drjit abort."""
+    import mitsuba as mi
+
+    from synthleak.config import RenderConfig
+    from synthleak.render.registry import RendererUnavailable, get_renderer
+
+    if mi.variant() == "llvm_ad_rgb":
+        mi.set_variant("scalar_rgb")  # the check runs when the variant is switched on
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    monkeypatch.setattr(mitsuba_backend, "_LLVM_GLOBS", (str(tmp_path / "libLLVM*.so*"),))
+    with pytest.raises(RendererUnavailable, match=r"mitsuba_variant 'llvm_ad_rgb'.*libllvm19"):
+        get_renderer(RenderConfig(renderer="mitsuba", mitsuba_variant="llvm_ad_rgb"))

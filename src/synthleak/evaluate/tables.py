@@ -10,6 +10,7 @@ paper's tables print 0 for objects never decided present); recall with no GT-pre
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from collections import defaultdict
@@ -19,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from synthleak.atomic_io import atomic_write_text
 from synthleak.attack.presence import PresenceRecord, leave_one_scene_out
 from synthleak.evaluate.metrics import DEFAULT_THRESHOLDS
 
@@ -316,19 +318,21 @@ def _csv_cell(value: Any) -> str:
 def write_results(rows: Sequence[dict], out_dir: str | Path, stem: str = "results") -> tuple[Path, Path]:
     """Write ``<stem>.csv`` and ``<stem>.json`` (same columns, stable order, deterministic formatting).
 
-    Missing / NaN values are empty cells in CSV and ``null`` in JSON; poses are JSON nested lists.
+    Missing / NaN values are empty cells in CSV and ``null`` in JSON; poses are JSON nested lists. Each file is
+    written atomically (a reader sees the old file or the whole new one).
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     columns = ordered_columns(rows)
     csv_path, json_path = out_dir / f"{stem}.csv", out_dir / f"{stem}.json"
-    with csv_path.open("w", newline="") as fh:
-        writer = csv.writer(fh, lineterminator="\n")
-        writer.writerow(columns)
-        for row in rows:
-            writer.writerow([_csv_cell(row.get(c)) for c in columns])
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(columns)
+    for row in rows:
+        writer.writerow([_csv_cell(row.get(c)) for c in columns])
+    atomic_write_text(csv_path, buffer.getvalue())
     payload = [{c: _plain(row.get(c)) for c in columns} for row in rows]
-    json_path.write_text(json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
+    atomic_write_text(json_path, json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
     return csv_path, json_path
 
 

@@ -95,7 +95,8 @@ def _register_each_light(mi: Any) -> None:
     Summing all lights per sample (mitsuba's ``direct`` picks one at random per sample) leaves no light-
     selection noise, and one primary intersection serves every light (the per-light passes of the scalar
     variant trace it once per pass). Emissive meshes glow where seen but light nothing (non-delta emitters
-    are skipped), as in the scalar variant's later passes; a miss is black (no environment emitter)."""
+    are skipped; the scalar variant's first pass samples them as area lights, with grain); a miss is black
+    (deterministic lighting has no environment emitter)."""
 
     class EachLight(mi.SamplingIntegrator):
         def sample(self, scene, sampler, ray, medium=None, active=True):  # noqa: ANN001, ANN201

@@ -74,6 +74,6 @@ def get_renderer(config: RenderConfig) -> Renderer:
         return factory(config)
     except ImportError as exc:
         raise RendererUnavailable(
-            f"render.renderer: backend {name!r} is not installed ({exc}); install it with: "
+            f"render.renderer: backend {name!r} cannot run here ({exc}); install it with: "
             f"{_INSTALL_HINTS.get(name, 'see its documentation')}"
         ) from exc
