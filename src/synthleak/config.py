@@ -63,7 +63,7 @@ class RenderConfig:
     """pyrender only: shadow maps for rect (spot) and distant lights; off renders RGB about 2x faster."""
     mitsuba_variant: str = "scalar_rgb"
     """mitsuba only: ``scalar_rgb`` (runs anywhere) or ``llvm_ad_rgb`` (vectorised, all lights in one pass:
-    about 4x faster per room frame and 10x per attacker frame at 640x480; needs the LLVM shared library,
+    measured 7x less CPU per room frame and 13x per attacker frame at 640x480; needs the LLVM shared library,
     version >= 16: ``apt-get install libllvm19`` on Debian 12). Same seed, same bytes within a variant."""
     notes: str = ""
 
