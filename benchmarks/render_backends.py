@@ -111,14 +111,13 @@ def _factories(mitsuba_spp: int, spp: int) -> dict[str, tuple[str, Callable[[], 
 
         if "lighting" in inspect.signature(MitsubaRenderer).parameters:  # one pass, all emitters at once
             factories[f"mitsuba direct {mitsuba_spp} physical"] = ("mitsuba", mitsuba(lighting="physical"))
-        if "variant" in inspect.signature(MitsubaRenderer).parameters:  # vectorised, all lights in one pass
-            from synthleak.render.mitsuba_backend import find_libllvm
+        from synthleak.render.mitsuba_backend import find_libllvm
 
-            try:
-                find_libllvm()
-                factories[f"mitsuba llvm direct {mitsuba_spp} spp"] = ("mitsuba", mitsuba(variant="llvm_ad_rgb"))
-            except ImportError as exc:
-                print(f"mitsuba llvm_ad_rgb skipped: {exc}")
+        try:  # vectorised, all lights in one pass
+            find_libllvm()
+            factories[f"mitsuba llvm direct {mitsuba_spp} spp"] = ("mitsuba", mitsuba(variant="llvm_ad_rgb"))
+        except ImportError as exc:
+            print(f"mitsuba llvm_ad_rgb skipped: {exc}")
     return factories
 
 

@@ -309,7 +309,7 @@ class MitsubaRenderer:
         self.lighting = lighting
         self.spp, self.integrator, self.max_depth, self.filter = spp, integrator, max_depth, filter
         self.variant = variant
-        self._mi = _mitsuba(variant)
+        _mitsuba(variant)  # an unknown variant or a missing libLLVM fails here, not at the first frame
         cap = worker_thread_cap()
         if cap is not None:
             import drjit as dr
@@ -347,7 +347,7 @@ class MitsubaRenderer:
 
     def prepare(self, scene: RenderScene) -> None:
         """Convert the scene once: the ray-cast BVH for ground truth, then one mitsuba scene per pass."""
-        mi = self._mi = _mitsuba(self.variant)
+        mi = _mitsuba(self.variant)  # also switches back if another renderer in this process set another variant
         self._gt = RaycastGT(scene.meshes)
         groups = self._light_groups(scene)
         if self.one_pass:
@@ -360,12 +360,13 @@ class MitsubaRenderer:
         dummy = self._sensor(Camera(8, 8, 8.0, 8.0, 4.0, 4.0), np.eye(4))
         self._scenes, self._fill_directions = [], []
         shapes = {f"mesh_{i:04d}": _mesh(mi, mesh, i) for i, mesh in enumerate(scene.meshes)}
-        # Emissive meshes glow in the first pass only (else the sum would count their radiance per pass).
+        # Emissive meshes glow in the first pass only (else the sum would count their radiance per pass); a
+        # single pass needs no dark copies.
         dark = {
             f"mesh_{i:04d}": _mesh(mi, replace(mesh, emissive=None), i)
             for i, mesh in enumerate(scene.meshes)
             if mesh.emissive is not None and max(mesh.emissive) > 0
-        }
+        } if len(groups) > 1 else {}
         for k, (group, direction) in enumerate(groups or [([], None)]):
             base: dict[str, Any] = {"type": "scene", "integrator": integrator, "sensor": dummy, **shapes}
             if k > 0:
@@ -429,7 +430,7 @@ class MitsubaRenderer:
         """sRGB uint8 (H, W, 3) from mitsuba alone (``skip``: pass indices known to contribute nothing)."""
         if not self._scenes:
             raise RuntimeError("MitsubaRenderer.render before prepare(scene)")
-        mi = self._mi = _mitsuba(self.variant)
+        mi = _mitsuba(self.variant)
         sensor = mi.load_dict(self._sensor(camera, cam_from_world))
         total = np.zeros((camera.height, camera.width, 3))
         for k, scene in enumerate(self._scenes):  # passes sum linearly; each gets its own sample stream
