@@ -38,6 +38,17 @@ class ScenesConfig:
     attacker_variant_magnitude: float = 0.5
     attacker_variant_kinds: list[str] = field(default_factory=lambda: ["colour", "scale", "shape"])
     lights_per_room: tuple[int, int] = (2, 4)
+    material_sharing: float = 0.0
+    """Probability in [0, 1] that a model's material slot uses a shared catalogue SKU (the same exact texture
+    on every product using it) instead of a model-unique texture; 0 keeps every model's own textures."""
+    distractors: tuple[int, int] = (0, 0)
+    """Per room [min, max] look-alike furniture models that are never attacker objects (never "present")."""
+    clutter: float = 0.0
+    """Clutter level: 1 is a lived-in home (about 0.25 floor props per m² of floor, 0.1 wall props per metre
+    of free wall, 4 small props per m² of table and shelf tops); 0 places none."""
+    layout: str = "scatter"
+    """``home``: furniture as people place it (cupboards, beds, sofas, shelves, desks backed against walls,
+    chairs at tables, lamps beside seats); ``scatter``: anywhere, half of it free-standing."""
 
 
 @dataclass(frozen=True)
@@ -65,6 +76,12 @@ class RenderConfig:
     """mitsuba only: ``scalar_rgb`` (runs anywhere) or ``llvm_ad_rgb`` (vectorised, all lights in one pass:
     measured 7x less CPU per room frame and 13x per attacker frame at 640x480; needs the LLVM shared library,
     version >= 16: ``apt-get install libllvm19`` on Debian 12). Same seed, same bytes within a variant."""
+    walkthrough: str = "loop"
+    """``furniture``: the walk-through path visits the furniture and looks at it from 1-3 m, as a mapping
+    crew would; ``loop``: a loop through the free floor looking across the room."""
+    genuine_closeup_fraction: float = 0.0
+    """Share of the held-out genuine query frames taken 0.5-1.5 m from one object or a small group, as a
+    phone user would (the rest are walk-through frames)."""
     notes: str = ""
 
 

@@ -141,8 +141,9 @@ def _query_plan(config: StudyConfig, scene_dataset: Path, attacker_dataset: Path
     plan = []
     if genuine:
         scene = load_sequence(scene_dataset / "scenes" / room)
+        closeups = set(scene.split.get("closeup", []))
         plan += [{"sequence": f"scenes/{room}", "frame": f, "genuine": True, "attacker_object": None}
-                 for f in scene.split["query"]]
+                 | ({"closeup": f in closeups} if closeups else {}) for f in scene.split["query"]]
     for obj in load_index(attacker_dataset)["attacker_objects"]:
         seq = load_sequence(attacker_dataset / "attackers" / obj["id"])
         frames = seq.frames
@@ -398,18 +399,19 @@ def _map_points_per_instance(map_dir: Path) -> dict[int, int] | None:
     return dict(Counter(int(instance) for instance in json.loads(path.read_text()).values()))
 
 
-def _server_funnel(records: list[dict[str, Any]], gt_id: int | None, points: dict[int, int] | None
-                   ) -> dict[str, int | None]:
-    """Where a present pair's queries get lost on the server: the map's 3D points on the room's instance,
-    and the localized queries whose PnP inliers lie mostly on it (None for absent pairs)."""
+def _server_funnel(records: list[dict[str, Any]], gt_id: int | None, points: dict[int, int] | None,
+                   lookalikes: dict[int, str]) -> dict[str, int | None]:
+    """Where a pair's queries go on the server. Present pairs: the map's 3D points on the room's instance and
+    the localized queries whose PnP inliers lie mostly on it; absent pairs: the localized queries whose
+    inliers lie mostly on a look-alike (an instance sharing a SKU or the category with the queried object)."""
+    from synthleak.evaluate.lookalikes import top_instance
+
+    tops = [top_instance(q.get("inlier_instance_counts") or {}) for q in records if q["success"]]
     if gt_id is None:
-        return {"map_points_on_target": None, "n_target_top": None}
-    top = 0
-    for q in records:
-        counts = q.get("inlier_instance_counts") or {}
-        if q["success"] and counts and max(counts, key=lambda k: (counts[k], -int(k))) == str(gt_id):
-            top += 1
-    return {"map_points_on_target": None if points is None else points.get(int(gt_id), 0), "n_target_top": top}
+        return {"map_points_on_target": None, "n_target_top": None,
+                "n_lookalike_top": sum(1 for t in tops if t in lookalikes)}
+    return {"map_points_on_target": None if points is None else points.get(int(gt_id), 0),
+            "n_target_top": sum(1 for t in tops if t == int(gt_id)), "n_lookalike_top": None}
 
 
 def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, str], Path],
@@ -418,14 +420,15 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
     """One results row per (room, attacker object, tier, aligner, thresholds), presence decided
     leave-one-scene-out and placement scored against the room's ground truth."""
     from synthleak.attack.run import run_attack
+    from synthleak.evaluate.lookalikes import absent_kind, lookalike_ids
     from synthleak.evaluate.score import score_placement
     from synthleak.evaluate.tables import apply_presence_decisions
     from synthleak.render.dataset import load_sequence
 
     attacker_dataset = attacker_dataset or paths.dataset
     index = load_index(attacker_dataset)
-    rooms = {room["name"]: load_sequence(paths.dataset / "scenes" / room["name"]).objects_by_id()
-             for room in load_index(paths.dataset)["rooms"]}
+    room_entries = {room["name"]: room for room in load_index(paths.dataset)["rooms"]}
+    rooms = {name: load_sequence(paths.dataset / "scenes" / name).objects_by_id() for name in room_entries}
     by_object: dict[tuple[str, str], dict[str, list[dict]]] = {}  # each log parsed once, not once per object
     for name, log in logs.items():
         for q in read_query_log(log):
@@ -444,7 +447,9 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
             local_sent = {f: p for f, p in local.items() if f in sent}
             gt_id = obj.get("present_in", {}).get(room)
             gt = rooms[room].get(gt_id) if gt_id is not None else None
-            funnel = _server_funnel(records, gt_id if gt is not None else None, map_points[(tier, room)])
+            funnel = _server_funnel(records, gt_id if gt is not None else None, map_points[(tier, room)],
+                                    lookalike_ids(obj, room_entries[room]))
+            kind_of_pair = None if gt is not None else absent_kind(obj, room_entries[room])
             for aligner in config.attack.aligners:
                 for delta_r, delta_t in config.attack.thresholds:
                     alignment = run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(sent))
@@ -459,6 +464,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
                         "delta_r_deg": float(delta_r), "delta_t_m": float(delta_t), "present_gt": gt is not None,
                         "eps": float(alignment.eps), "decision": False, "n_queries": len(sent),
                         "n_localized": len(server), **funnel, **score, "magnitude": magnitude, "kind": kind,
+                        "absent_kind": kind_of_pair,
                     })
     return apply_presence_decisions(rows)
 
@@ -530,6 +536,7 @@ def genuine_localization(paths: StudyPaths, logs: dict[tuple[str, str], Path]) -
     for (tier, room), log in sorted(logs.items()):
         scene = load_sequence(paths.dataset / "scenes" / room)
         genuine = [q for q in read_query_log(log) if q["genuine"]]
+        closeups = [q for q in genuine if q.get("closeup")]
         rot, trans = [], []
         for q in genuine:
             if q["success"]:
@@ -537,15 +544,48 @@ def genuine_localization(paths: StudyPaths, logs: dict[tuple[str, str], Path]) -
                 rot.append(rotation_error_deg(est[:3, :3], gt[:3, :3]))
                 trans.append(float(np.linalg.norm(camera_centre(est) - camera_centre(gt))))
         out.append({"tier": tier, "room": room, "n": len(genuine), "localized": len(rot),
+                    "closeups": len(closeups), "closeups_localized": sum(1 for q in closeups if q["success"]),
                     "median_rot_err_deg": float(np.median(rot)) if rot else float("nan"),
                     "median_trans_err_m": float(np.median(trans)) if trans else float("nan")})
     return out
+
+
+def world_summary(config: StudyConfig, paths: StudyPaths) -> dict[str, Any]:
+    """The hard-world knobs, what each room holds, and the furniture coverage of each walk-through (from the
+    GT instance masks)."""
+    from synthleak.evaluate.coverage import sequence_coverage
+    from synthleak.render.dataset import load_sequence
+
+    sc, rc = config.scenes, config.render
+    rooms = []
+    for room in load_index(paths.dataset)["rooms"]:
+        coverage = sequence_coverage(load_sequence(paths.dataset / "scenes" / room["name"]))
+        rooms.append({"room": room["name"], "selected": len(room["objects"]),
+                      "distractors": len(room.get("distractors", [])), "props": len(room.get("props", [])),
+                      **{k: v for k, v in coverage.items() if k != "sequence"}})
+    return {"knobs": {"material_sharing": sc.material_sharing, "distractors": list(sc.distractors),
+                      "clutter": sc.clutter, "layout": sc.layout, "walkthrough": rc.walkthrough,
+                      "genuine_closeup_fraction": rc.genuine_closeup_fraction},
+            "rooms": rooms}
+
+
+def _world_section(config: StudyConfig, world: dict[str, Any]) -> list[str]:
+    from synthleak.evaluate.tables import markdown_table
+
+    knobs = ", ".join(f"{k} = {v}" for k, v in world["knobs"].items())
+    columns = ["room", "selected", "distractors", "props", "frames", "median_coverage", "share_below_10pct",
+               "closeups", "closeup_median_coverage"]
+    return ["## The world\n",
+            f"Difficulty knobs: {knobs}. Coverage: fraction of a frame's pixels on furniture and props (not the "
+            "room shell), from the GT instance masks; `share_below_10pct`: walk-through frames under 10 %.\n",
+            markdown_table(world["rooms"], columns, digits=3)]
 
 
 def defense_queries(logs: dict[tuple[str, str], Path]) -> list[dict[str, Any]]:
     """The logged query decisions in the form the offline defense sweep reads."""
     return [{"tier": q["tier"], "room": q["room"], "genuine": q["genuine"], "attacker_object": q["attacker_object"],
              "success_without_defense": q["success"], "inlier_instance_counts": q["inlier_instance_counts"]}
+            | ({"closeup": q["closeup"]} if "closeup" in q else {})
             for _, log in sorted(logs.items()) for q in read_query_log(log)]
 
 
@@ -600,6 +640,7 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
                  logs: dict[tuple[str, str], Path], timings: dict[str, float],
                  sweep_rows: list[dict[str, Any]] | None = None) -> Path:
     """``report.md`` with the paper-shaped tables, placement and defense figures, and the plots."""
+    from synthleak.evaluate.absent_pairs import absent_funnel_markdown, presence_by_absent_kind_markdown
     from synthleak.evaluate.defense_sweep import defense_tradeoff
     from synthleak.evaluate.plots import plot_defense_tradeoff, plot_placement_cdfs, plot_presence_pr
     from synthleak.evaluate.tables import (
@@ -612,6 +653,8 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
     )
 
     paths.plots.mkdir(parents=True, exist_ok=True)
+    world = world_summary(config, paths)
+    atomic_write_text(paths.results / "world.json", json.dumps(world, indent=1))
     genuine = genuine_localization(paths, logs)
     tradeoff = defense_tradeoff(defense_queries(logs), config.defense.sweep_fractions,
                                 config.defense.sweep_min_instances)
@@ -631,17 +674,30 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         f"renderer {config.render.renderer} {config.render.width}x{config.render.height}; "
         f"tiers {', '.join(config.localize.tiers)}; aligners {', '.join(config.attack.aligners)}; "
         f"local model {config.attack.local_model}.\n",
-        "## Genuine queries (held-out walk-through frames)\n",
-        markdown_table(genuine, ["tier", "room", "n", "localized", "median_rot_err_deg", "median_trans_err_m"]),
+        *_world_section(config, world),
+        "## Genuine queries (held-out frames: walk-through and close-ups)\n",
+        markdown_table(genuine, ["tier", "room", "n", "localized", "closeups", "closeups_localized",
+                                 "median_rot_err_deg", "median_trans_err_m"]),
         "## Presence (paper Table 1 shape)\n",
         table1_markdown(rows),
         "## Presence per object (paper appendix table shape)\n",
         table2_markdown(rows),
         "## Where presence is lost (GT-present pairs, server side)\n",
         recall_funnel_markdown(rows),
+        "## Where false presence comes from (GT-absent pairs, server side)\n",
+        "Absent pairs by what the room holds: an instance sharing a material SKU with the queried object "
+        "(`shares_sku`), else one of its category (`same_category`), else neither (`unrelated`). "
+        "*Localized on a look-alike*: a localized query has most PnP inliers on such an instance.\n",
+        absent_funnel_markdown(rows),
+        "## Presence by kind of absent pair\n",
+        "False positives among the absent pairs of each kind, and the precision counting only that kind of "
+        "absent pair (all present pairs).\n",
+        presence_by_absent_kind_markdown(rows),
         "## Placement against ground truth\n",
         placement_summary(rows, config.attack.thresholds),
         "## Defense trade-off (paper Fig. 6, exact instance labels)\n",
+        "Among the queries the server localizes: genuine queries kept (all, walk-through frames, close-ups of one "
+        "object or a small group) and attacker queries rejected, pooled over tiers.\n",
         markdown_table([t for t in tradeoff if t.get("tier") == "all"],
                         [k for k in (tradeoff[0] if tradeoff else {}) if k != "tier"]),
         *_sweep_section(sweep_rows or [], paths, plots),

@@ -41,6 +41,7 @@ import numpy as np
 
 from synthleak.assets.builders import BUILDERS, PartBuilder, SupportSurface
 from synthleak.assets.builders.base import MaterialSlot
+from synthleak.assets.materials import get_sku
 from synthleak.assets.mesh import ObjectMesh
 from synthleak.assets.textures import TEXTURE_KINDS, make_texture
 from synthleak.paths import object_library_dir
@@ -118,12 +119,14 @@ class ObjectModel:
         return build_model(self, params)[0]
 
     def material_texture(self, material: str) -> np.ndarray:
-        """The (cached, read-only) base texture of one material slot."""
+        """The (cached, read-only) base texture of one material slot (its shared SKU's, if it uses one)."""
         if self.builder == "imported":
             from synthleak.assets.import_store import imported_texture
 
             return imported_texture(self, material)
         spec = self.textures[material]
+        if spec.get("sku"):
+            return get_sku(spec["sku"]).texture()
         return _cached_texture(
             self.model_id,
             material,

@@ -190,7 +190,8 @@ def plot_room_topdown(
 
 def plot_defense_tradeoff(tradeoff_rows: Sequence[dict], out: str | Path, group_field: str = "tier") -> Path:
     """Paper Fig. 6: genuine queries kept vs attacker queries rejected, a line per min fraction X, points
-    per min-instances k (annotated); one panel per value of ``group_field``.
+    per min-instances k (annotated); one panel per value of ``group_field``. Rows with
+    ``genuine_closeup_kept`` add a dashed line per X: the genuine close-ups kept.
 
     ``tradeoff_rows``: output of :func:`synthleak.evaluate.defense_sweep.defense_tradeoff`.
     """
@@ -207,6 +208,9 @@ def plot_defense_tradeoff(tradeoff_rows: Sequence[dict], out: str | Path, group_
             ys = [r["genuine_kept"] for r in line]
             ax.plot(xs, ys, "-", marker=_MARKERS[x_idx % len(_MARKERS)], color=_colour(x_idx), ms=4,
                     label=f"X = {100 * frac:g}%")
+            if any(math.isfinite(r.get("genuine_closeup_kept", math.nan)) for r in line):
+                ax.plot(xs, [r["genuine_closeup_kept"] for r in line], "--", marker=_MARKERS[x_idx % len(_MARKERS)],
+                        color=_colour(x_idx), ms=3, mfc="none", alpha=0.8, label=f"X = {100 * frac:g}%, close-ups")
             for r, px, py in zip(line, xs, ys, strict=True):
                 if math.isfinite(px) and math.isfinite(py):
                     ax.annotate(str(r["min_instances"]), (px, py), fontsize=6, xytext=(2, 2),

@@ -26,8 +26,8 @@ from synthleak.evaluate.metrics import DEFAULT_THRESHOLDS
 
 COLUMNS: tuple[str, ...] = (
     "room", "object", "model_id", "category", "tier", "aligner", "delta_r_deg", "delta_t_m", "present_gt",
-    "eps", "decision", "n_queries", "n_localized", "n_target_top", "map_points_on_target", "rot_err_deg",
-    "trans_err_m", "iou3d", "scene_from_object_est", "magnitude", "kind",
+    "eps", "decision", "n_queries", "n_localized", "n_target_top", "map_points_on_target", "absent_kind",
+    "n_lookalike_top", "rot_err_deg", "trans_err_m", "iou3d", "scene_from_object_est", "magnitude", "kind",
 )
 """Stable column order of the results files; extra keys follow, sorted."""
 
@@ -49,7 +49,7 @@ def sort_key(value: Any) -> tuple:
     return (1, 0.0, str(value))
 
 
-def _group(rows: Iterable[dict], fields: Sequence[str]) -> dict[tuple, list[dict]]:
+def group_rows(rows: Iterable[dict], fields: Sequence[str]) -> dict[tuple, list[dict]]:
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for k, row in enumerate(rows):
         missing = [f for f in fields if f not in row]
@@ -89,7 +89,7 @@ def precision_recall(rows: Sequence[dict]) -> dict[str, float | int]:
 def apply_presence_decisions(rows: Sequence[dict]) -> list[dict]:
     """Copies of ``rows`` with ``decision`` set by leave-one-scene-out within each attack configuration."""
     out = [dict(r) for r in rows]
-    for group in _group(out, CONFIG_KEYS).values():
+    for group in group_rows(out, CONFIG_KEYS).values():
         records = [
             PresenceRecord(r["room"], r["object"], float(r["eps"]), bool(r["present_gt"])) for r in group
         ]
@@ -112,9 +112,9 @@ def presence_pr_per_object(rows: Sequence[dict]) -> list[dict]:
 
 def _pr_by(rows: Sequence[dict], field: str) -> list[dict]:
     out = []
-    for key, group in _group(rows, CONFIG_KEYS).items():
+    for key, group in group_rows(rows, CONFIG_KEYS).items():
         base = dict(zip(CONFIG_KEYS, key, strict=True))
-        for (name,), sub in _group(group, [field]).items():
+        for (name,), sub in group_rows(group, [field]).items():
             out.append({**base, field: name, **precision_recall(sub)})
         out.append({**base, field: "all", **precision_recall(group)})
     return out
@@ -127,26 +127,25 @@ def random_guess_precision(rows: Sequence[dict]) -> float:
 
 
 def _pr_table(rows: Sequence[dict], field: str, title: str) -> str:
-    """One markdown table per (aligner, magnitude, kind): rows = ``field``, columns = tier x thresholds."""
+    """One markdown table per (aligner, magnitude, kind, tier): rows = ``field``, columns = thresholds x P/R."""
     blocks = []
-    for (aligner, magnitude, kind), sec_rows in _group(rows, ["aligner", "magnitude", "kind"]).items():
-        tiers = sorted({r["tier"] for r in sec_rows}, key=sort_key)
+    sections = group_rows(rows, ["aligner", "magnitude", "kind", "tier"])
+    for (aligner, magnitude, kind, tier), sec_rows in sections.items():
         thresholds = sorted({(r["delta_r_deg"], r["delta_t_m"]) for r in sec_rows})
         stats = {}
         for r in _pr_by(sec_rows, field):
-            stats[(r[field], r["tier"], r["delta_r_deg"], r["delta_t_m"])] = r
+            stats[(r[field], r["delta_r_deg"], r["delta_t_m"])] = r
         names = sorted({r[field] for r in sec_rows}, key=sort_key) + ["all"]
-        heading = f"**{title}** — aligner `{aligner}`"
+        heading = f"**{title}** — tier `{tier}`, aligner `{aligner}`"
         if magnitude is not None or kind is not None:
             heading += f", variant magnitude {magnitude}, kind {kind}"
-        cols = [f"{t} {_thr_label(*th)} {pr}" for t in tiers for th in thresholds for pr in ("P", "R")]
+        cols = [f"{_thr_label(*th)} {pr}" for th in thresholds for pr in ("P", "R")]
         lines = [heading, "", "| " + " | ".join([field, *cols]) + " |", "|" + "---|" * (len(cols) + 1)]
         for name in names:
             cells = []
-            for t in tiers:
-                for th in thresholds:
-                    s = stats.get((name, t, *th))
-                    cells += [_fmt(s["precision"]), _fmt(s["recall"])] if s else ["–", "–"]
+            for th in thresholds:
+                s = stats.get((name, *th))
+                cells += [_fmt(s["precision"]), _fmt(s["recall"])] if s else ["–", "–"]
             lines.append("| " + " | ".join([str(name), *cells]) + " |")
         lines += ["", f"Random-guess precision: {_fmt(random_guess_precision(sec_rows))}"]
         blocks.append("\n".join(lines))
@@ -185,7 +184,7 @@ def placement_stats(
     """
     out = []
     chosen = [r for r in rows if r["present_gt"] and (r["decision"] or not decided_only)]
-    for key, group in _group(chosen, CONFIG_KEYS).items():
+    for key, group in group_rows(chosen, CONFIG_KEYS).items():
         rot = np.array([_finite_or(r.get("rot_err_deg"), math.inf) for r in group])
         trans = np.array([_finite_or(r.get("trans_err_m"), math.inf) for r in group])
         iou = np.array([_finite_or(r.get("iou3d"), 0.0) for r in group])
@@ -260,7 +259,7 @@ def recall_funnel(rows: Sequence[dict]) -> list[dict[str, Any]]:
     first = main[0]
     config = (first["aligner"], first["delta_r_deg"], first["delta_t_m"])
     out = []
-    for (tier,), group in _group(main, ["tier"]).items():
+    for (tier,), group in group_rows(main, ["tier"]).items():
         pairs = [r for r in group if (r["aligner"], r["delta_r_deg"], r["delta_t_m"]) == config]
         points = [r.get("map_points_on_target") for r in pairs]
         out.append({

@@ -252,7 +252,7 @@ def write_sequence_metadata(
         },
     )
     if split is not None:
-        atomic_write_json(seq_dir / "split.json", {"map": list(split["map"]), "query": list(split["query"])})
+        atomic_write_json(seq_dir / "split.json", {key: list(frames) for key, frames in split.items()})
 
 
 def to_object_frame(
@@ -273,7 +273,8 @@ def to_object_frame(
 
 
 def make_split(frames: list[str], query_every: int) -> dict[str, list[str]]:
-    """Every ``query_every``-th frame (indices n-1, 2n-1, ...) is a held-out query; the rest build the map."""
+    """Every ``query_every``-th frame (indices n-1, 2n-1, ...) is a held-out query; the rest build the map.
+    (A scene sequence with genuine close-ups adds ``closeup``: the query frames that are close-ups.)"""
     if query_every < 2:
         raise ValueError(f"render.query_every must be >= 2, got {query_every}")
     query = [f for i, f in enumerate(frames) if i % query_every == query_every - 1]
@@ -450,13 +451,17 @@ def load_sequence(path: Path) -> Sequence:
     split_path = root / "split.json"
     if split_path.is_file():
         raw = read_json(split_path)
-        for key in ("map", "query"):
+        keys = ("map", "query", *(("closeup",) if "closeup" in raw else ()))
+        for key in keys:
             if not isinstance(raw.get(key), list):
                 raise DatasetError(f"{split_path}: field {key!r} must be a list of frame names")
             unknown = [f for f in raw[key] if f not in poses]
             if unknown:
                 raise DatasetError(f"{split_path}: {key}: frames not in colmap/images.txt: {unknown[:5]}")
-        split = {"map": list(raw["map"]), "query": list(raw["query"])}
+        not_queries = sorted(set(raw.get("closeup", [])) - set(raw["query"]))
+        if not_queries:
+            raise DatasetError(f"{split_path}: closeup: frames that are not queries: {not_queries[:5]}")
+        split = {key: list(raw[key]) for key in keys}
     for name, pose in poses.items():
         if not np.all(np.isfinite(pose)):
             raise DatasetError(f"{root / 'colmap' / 'images.txt'}: image {name}: non-finite pose")

@@ -36,6 +36,7 @@ from synthleak.render.dataset import (
     write_frame,
     write_sequence_metadata,
 )
+from synthleak.render.furniture_views import closeup_views, furniture_walkthrough
 from synthleak.render.registry import get_renderer
 from synthleak.render.trajectories import orbit, walkthrough
 from synthleak.seeding import derive_seed, make_rng
@@ -85,12 +86,23 @@ def load_stage(scene_path: Path) -> RenderScene:
         raise StageError(f"{scene_path}: cannot read stage: {type(exc).__name__}: {exc}") from exc
 
 
+WALKTHROUGHS = ("loop", "furniture")
+
+
 def plan_poses(scene: RenderScene, config: StudyConfig, kind: str, name: str) -> list:
-    """The sequence's ``cam_from_world`` poses in the stage world (deterministic in seed and name)."""
+    """The sequence's ``cam_from_world`` poses in the stage world (deterministic in seed and name).
+
+    Scene sequences follow ``render.walkthrough`` (the ``furniture`` tour falls back to the ``loop`` in a room
+    without furniture); their close-ups are planned separately (:func:`plan_closeups`)."""
     rng = make_rng(config.seed, "trajectory", name)
     rc = config.render
     if kind == "scene":
-        return walkthrough(scene, rc.scene_frames, rng)
+        if rc.walkthrough not in WALKTHROUGHS:
+            raise ValueError(f"render.walkthrough: {rc.walkthrough!r} is not one of {WALKTHROUGHS}")
+        poses = None
+        if rc.walkthrough == "furniture":
+            poses = furniture_walkthrough(scene, rc.scene_frames, rng, rc.hfov_deg, rc.height / rc.width)
+        return poses if poses is not None else walkthrough(scene, rc.scene_frames, rng)
     if kind == "attacker":
         if scene.target_instance_id is None:
             raise StageError(f"{scene.source or name}: attacker stage has no target_instance_id")
@@ -103,6 +115,22 @@ def plan_poses(scene: RenderScene, config: StudyConfig, kind: str, name: str) ->
             aspect=rc.height / rc.width,
         )
     raise ValueError(f"kind must be 'scene' or 'attacker', got {kind!r}")
+
+
+def plan_closeups(scene: RenderScene, config: StudyConfig, name: str, queries: list[str]) -> dict[str, np.ndarray]:
+    """Frame name -> close-up ``cam_from_world`` for ``render.genuine_closeup_fraction`` of the query frames
+    (drawn from their own random stream, so the walk-through does not change with the fraction)."""
+    fraction = config.render.genuine_closeup_fraction
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"render.genuine_closeup_fraction must be in [0, 1], got {fraction}")
+    count = int(round(fraction * len(queries)))
+    if count == 0:
+        return {}
+    rng = make_rng(config.seed, "closeups", name)
+    chosen = sorted(queries[i] for i in rng.choice(len(queries), size=count, replace=False))
+    rc = config.render
+    poses = closeup_views(scene, count, rng, rc.hfov_deg, rc.height / rc.width)
+    return dict(zip(chosen, poses, strict=False))
 
 
 FRAMES_PER_TASK = 25
@@ -182,6 +210,13 @@ def plan_sequence(job: SequenceJob, config: StudyConfig, scene: RenderScene | No
     camera = Camera.from_hfov(rc.width, rc.height, rc.hfov_deg)
     poses = plan_poses(scene, config, kind, name)
     frames = [frame_name(i) for i in range(len(poses))]
+    split = None
+    if kind == "scene":
+        split = make_split(frames, rc.query_every)
+        closeups = plan_closeups(scene, config, name, split["query"])
+        poses = [closeups.get(f, p) for f, p in zip(frames, poses, strict=True)]
+        if closeups:
+            split["closeup"] = sorted(closeups)
     if kind == "attacker":
         stored_poses, instances = to_object_frame(poses, scene.instances, scene.target_instance_id)
     else:
@@ -198,7 +233,7 @@ def plan_sequence(job: SequenceJob, config: StudyConfig, scene: RenderScene | No
         instances=instances,
         frame="object" if kind == "attacker" else "world",
         target_instance_id=scene.target_instance_id if kind == "attacker" else None,
-        split=make_split(frames, rc.query_every) if kind == "scene" else None,
+        split=split,
     )
     todo = [i for i in range(len(frames)) if not frame_complete(out_dir, frames[i])]
     return [FrameTask(job, config, idx, [poses[i] for i in idx]) for idx in chunks(todo, FRAMES_PER_TASK)]

@@ -1,0 +1,174 @@
+"""The hard world: shared material SKUs, distractors, clutter, home layouts, furniture views, close-ups."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from synthleak.assets.library import load_library
+from synthleak.assets.materials import FAMILIES, UNIQUE, assign_materials, model_skus, with_materials
+from synthleak.assets.variants import variant, variant_from_record
+from synthleak.config import load_config
+from synthleak.geometry.poses import look_at, make_pose
+from synthleak.render.base import Camera, InstanceInfo, RenderMesh, RenderScene
+from synthleak.render.mitsuba_backend import MitsubaRenderer
+from synthleak.scene.generate import write_study_stages
+from synthleak.scene.spec import Light
+
+DATA = Path(__file__).parent / "data"
+
+
+@pytest.fixture(scope="module")
+def library():
+    return load_library()
+
+
+def _config(base: str = "ci-tiny", **scenes):
+    config = load_config(base)
+    return dataclasses.replace(config, scenes=dataclasses.replace(config.scenes, **scenes))
+
+
+# ------------------------------------------------------------------------------------------ clean world
+
+
+def test_clean_knobs_give_the_stages_of_before(tmp_path):
+    """material_sharing 0, no distractors, no clutter, scatter layout: the stages of before the knobs existed,
+    byte for byte (the library pinned to the models it had then)."""
+    expected = json.loads((DATA / "ci-tiny-clean-stages.json").read_text())
+    config = _config(models=expected["models"], material_sharing=0.0, distractors=(0, 0), clutter=0.0,
+                     layout="scatter")
+    write_study_stages(config, tmp_path, progress=False)
+    files = {p.relative_to(tmp_path).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+             for p in sorted(tmp_path.rglob("*")) if p.is_file()}
+    assert files == expected["files"]
+
+
+# ------------------------------------------------------------------------------------------ materials
+
+
+def test_material_assignment_is_seeded_and_nested(library):
+    furniture = [m for m in library.values() if getattr(m, "role", "furniture") == "furniture"]
+    low = {m.model_id: assign_materials(m, 3, 0.3) for m in furniture}
+    high = {m.model_id: assign_materials(m, 3, 0.8) for m in furniture}
+    assert low == {m.model_id: assign_materials(m, 3, 0.3) for m in furniture}  # deterministic
+    shared_low = {(mid, s) for mid, a in low.items() for s, sku in a.items() if sku != UNIQUE}
+    shared_high = {(mid, s) for mid, a in high.items() for s, sku in a.items() if sku != UNIQUE}
+    assert shared_low < shared_high  # a slot shared at 0.3 stays shared, with the same SKU, at 0.8
+    assert all(low[mid][s] == high[mid][s] for mid, s in shared_low)
+    assert not any(sku != UNIQUE for m in furniture for sku in assign_materials(m, 3, 0.0).values())
+    other_seed = {m.model_id: assign_materials(m, 4, 0.8) for m in furniture}
+    assert other_seed != high
+    # SKUs are shared between models: with sharing 1 some SKU appears on several models
+    everything = [sku for m in furniture for sku in assign_materials(m, 3, 1.0).values() if sku != UNIQUE]
+    assert max(everything.count(s) for s in set(everything)) >= 3
+
+
+def test_sku_textures_are_one_texture_and_recorded(library):
+    a = with_materials(library["table_coffee"], {"top": "laminate/oak_natural"})
+    b = with_materials(library["table_side"], {"top": "laminate/oak_natural"})
+    assert a.material_texture("top") is b.material_texture("top")
+    assert not np.array_equal(a.material_texture("legs"), b.material_texture("legs"))
+    assert a.textures["top"]["texel_scale"] == FAMILIES["laminate"][0].texel_scale
+    v = variant(a, seed=11, magnitude=0.5)
+    record = v.record()
+    assert record["materials"] == {"top": "laminate/oak_natural"} == model_skus(a)
+    rebuilt = variant_from_record(record, library)
+    np.testing.assert_array_equal(rebuilt.build().parts[0].texture, v.build().parts[0].texture)
+    # a colour variant still recolours the shared texture
+    assert not np.array_equal(v.build().parts[0].texture, variant(a, 11, 0.0).build().parts[0].texture)
+    with pytest.raises(KeyError, match="no material slot"):
+        with_materials(library["table_side"], {"seat": "laminate/birch"})
+
+
+def _top_view(model, renderer: MitsubaRenderer, camera: Camera) -> np.ndarray:
+    """A render looking straight down at the model's top from 0.6 m above it (the top fills the view)."""
+    mesh = variant(model, 0, 0.0).build()
+    meshes = [RenderMesh(p.name, 100, p.vertices, p.faces, p.uv, p.texture, roughness=p.roughness)
+              for p in mesh.parts]
+    height = float(mesh.extents()[2])
+    info = InstanceInfo(100, model.model_id, model.model_id, model.category, "none", "object", np.eye(4),
+                        mesh.extents())
+    light = Light("sun", "sphere", make_pose(np.eye(3), [0.3, -0.4, height + 2.0]), 20.0)
+    scene = RenderScene(meshes, [light], {100: info}, ambient=0.3)
+    renderer.prepare(scene)
+    eye = np.array([0.0, 0.0, height + 0.6])
+    return renderer.render(camera, look_at(eye, eye - [0.0, 0.0, 1.0], up=(0.0, 1.0, 0.0)), 0).rgb
+
+
+def _homography_inliers(img_a: np.ndarray, img_b: np.ndarray) -> int:
+    sift = cv2.SIFT_create(4000)
+    ka, da = sift.detectAndCompute(cv2.cvtColor(img_a, cv2.COLOR_RGB2GRAY), None)
+    kb, db = sift.detectAndCompute(cv2.cvtColor(img_b, cv2.COLOR_RGB2GRAY), None)
+    if da is None or db is None:
+        return 0
+    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(da, db, k=2)
+    good = [m for m, n in (p for p in pairs if len(p) == 2) if m.distance < 0.8 * n.distance]
+    if len(good) < 4:
+        return 0
+    src = np.float32([ka[m.queryIdx].pt for m in good])
+    dst = np.float32([kb[m.trainIdx].pt for m in good])
+    _, mask = cv2.findHomography(src, dst, cv2.USAC_MAGSAC, 3.0, maxIters=5000, confidence=0.9999)
+    return int(mask.sum()) if mask is not None else 0
+
+
+def test_shared_sku_gives_shared_local_features(library):
+    """Two products sharing a laminate show the same print: SIFT matches between renders of their tops verified
+    by a homography; with their own textures they share (almost) nothing."""
+    renderer = MitsubaRenderer(spp=4, integrator="direct", max_depth=2)
+    camera = Camera.from_hfov(640, 480, 65.0)
+    shared = {"top": "laminate/oak_natural"}  # dark and white foils have less texture: fewer matches
+    coffee, side = library["table_coffee"], library["table_side"]
+    same = _homography_inliers(_top_view(with_materials(coffee, shared), renderer, camera),
+                               _top_view(with_materials(side, shared), renderer, camera))
+    unique = _homography_inliers(_top_view(coffee, renderer, camera), _top_view(side, renderer, camera))
+    assert same >= 100, same
+    assert unique < 10, unique
+
+
+# ------------------------------------------------------------------------------------------ scenes
+
+
+@pytest.fixture(scope="module")
+def hard_stages(tmp_path_factory):
+    config = _config(material_sharing=1.0, distractors=(2, 2), clutter=1.5, layout="home")
+    out = tmp_path_factory.mktemp("hard-stages")
+    write_study_stages(config, out, progress=False)
+    return config, out, json.loads((out / "index.json").read_text())
+
+
+def test_distractors_are_never_attacker_objects(hard_stages, library):
+    _, _, index = hard_stages
+    attacked = {a["model_id"] for a in index["attacker_objects"]}
+    categories = {library[m].category for m in attacked}
+    skus = {s for a in index["attacker_objects"] for s in a.get("skus", {}).values()}
+    for room in index["rooms"]:
+        assert room["distractors"], room["name"]
+        for d in room["distractors"]:
+            assert d["model_id"] not in attacked
+            assert 300 <= d["instance_id"] < 1000
+            # look-alikes first: the selected models' categories or SKUs
+            assert d["category"] in categories or skus & set(d.get("skus", {}).values())
+        present = {o["model_id"] for o in room["objects"]}
+        for a in index["attacker_objects"]:
+            assert (room["name"] in a["present_in"]) == (a["model_id"] in present)
+
+
+def test_skus_are_recorded_in_index_stage_and_attacker(hard_stages):
+    from synthleak.scene.usd_io import read_scene_spec
+
+    _, out, index = hard_stages
+    by_model = {a["model_id"]: a for a in index["attacker_objects"]}
+    room = index["rooms"][0]
+    spec = read_scene_spec(out / room["stage"])
+    recorded = {o.instance_id: o.variant_params.get("materials", {}) for o in spec.objects}
+    for obj in room["objects"]:
+        assert obj["skus"] == recorded[obj["instance_id"]] == by_model[obj["model_id"]]["skus"]
+    attacker = read_scene_spec(out / by_model[room["objects"][0]["model_id"]]["stage"])
+    target = next(o for o in attacker.objects if o.instance_id == 100)
+    assert target.variant_params["materials"] == room["objects"][0]["skus"]
