@@ -15,9 +15,11 @@ def _cmd_objects(args: argparse.Namespace) -> None:
     from rich.console import Console
 
     from synthleak.assets.catalog import objects_rows, objects_table
-    from synthleak.assets.library import load_library
+    from synthleak.assets.library import by_role, load_library
 
     library = load_library()
+    if args.role:
+        library = by_role(library, args.role)
     if args.json:
         print(json.dumps(objects_rows(library), indent=2))
     else:
@@ -137,6 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("objects", _cmd_objects, "list the object library's models")
     p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--role", choices=["furniture", "prop"], help="only the furniture or only the props")
 
     p = command("scenes", _cmd_scenes, "write the USD stages of a study (rooms + attacker setups)")
     p.add_argument("config", help="config path or name in render_configs/ (e.g. ci-tiny)")
