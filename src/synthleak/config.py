@@ -125,10 +125,13 @@ class DefenseConfig:
 
 @dataclass(frozen=True)
 class SweepConfig:
-    """Leakage-vs-dissimilarity sweep over attacker variant magnitudes (empty: no sweep)."""
+    """Sweeps (each empty: not swept): leakage against attacker variant magnitude (attackers re-rendered only),
+    and against the hard-world knobs ``material_sharing`` and ``clutter`` (a whole study per value)."""
 
     magnitudes: list[float] = field(default_factory=list)
     kinds: list[str] = field(default_factory=lambda: ["all"])
+    material_sharing: list[float] = field(default_factory=list)
+    clutter: list[float] = field(default_factory=list)
 
 
 @dataclass(frozen=True)

@@ -526,6 +526,35 @@ def stage_sweep(config: StudyConfig, paths: StudyPaths, render_key: str, maps: d
     return rows
 
 
+def stage_world_sweep(config: StudyConfig, paths: StudyPaths, force: set[str], progress: bool,
+                      server_url: str | None = None, executor: Executor | None = None) -> list[dict[str, Any]]:
+    """Leakage against the hard-world knobs: for each value of ``[sweep] material_sharing`` / ``clutter``, the
+    whole study (stages, renders, maps, queries, attack) with that value, under ``sweep/<knob>-<value>/``,
+    each stage cached as in the main study. Rows are tagged ``sweep_param`` / ``sweep_value``."""
+    import dataclasses
+
+    from synthleak.config import SweepConfig
+    from synthleak.evaluate.tables import write_results
+
+    points = [(param, float(v)) for param in ("material_sharing", "clutter") for v in getattr(config.sweep, param)]
+    if points and server_url:
+        raise ValueError("sweep.material_sharing / sweep.clutter build a map per value: they need the in-process "
+                         "server (drop --server)")
+    rows: list[dict[str, Any]] = []
+    for param, value in points:
+        sub = dataclasses.replace(config, scenes=dataclasses.replace(config.scenes, **{param: value}),
+                                  sweep=SweepConfig())
+        sub_paths = StudyPaths(paths.root / "sweep" / f"{param}-{value:g}")
+        render_key = stage_render(sub, sub_paths, force, progress, executor)
+        maps = stage_maps(sub, sub_paths, render_key, force, progress, executor)
+        stage_features(sub, sub_paths, maps, force, progress, executor=executor)
+        logs = stage_queries(sub, sub_paths, maps, force, progress, executor=executor)
+        rows += [r | {"sweep_param": param, "sweep_value": value} for r in attack_rows(sub, sub_paths, logs)]
+    if rows:
+        write_results(rows, paths.results, stem="sweep_world")
+    return rows
+
+
 # ----------------------------------------------------------------------------------------------- report
 def genuine_localization(paths: StudyPaths, logs: dict[tuple[str, str], Path]) -> list[dict[str, Any]]:
     """Accuracy of the held-out genuine queries per (tier, room): the server works as a server should."""
@@ -619,6 +648,27 @@ def _room_plots(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any
     return out
 
 
+def _world_sweep_section(config: StudyConfig, rows: list[dict[str, Any]], paths: StudyPaths,
+                         plots: list[Path]) -> list[str]:
+    """Report lines for the material-sharing / clutter sweeps (and their plot appended to ``plots``)."""
+    if not rows:
+        return []
+    from synthleak.evaluate.plots import plot_leakage_vs_world
+    from synthleak.evaluate.tables import markdown_table
+    from synthleak.evaluate.world_sweep import leakage_vs_world
+
+    aligner = config.attack.aligners[0]
+    thresholds = config.attack.thresholds[len(config.attack.thresholds) // 2]
+    plots.append(plot_leakage_vs_world(rows, paths.plots / "leakage_vs_world.png", aligner, thresholds))
+    stats = [s for s in leakage_vs_world(rows) if s["aligner"] == aligner
+             and (s["delta_r_deg"], s["delta_t_m"]) == tuple(thresholds)]
+    columns = ["sweep_param", "sweep_value", "tier", "precision", "recall", "tp", "fp", "n_pairs"]
+    return ["## Leakage against the hard-world knobs (material sharing, clutter)\n",
+            f"A whole study per value (rooms, maps and attackers re-made); presence P/R with `{aligner}` at "
+            f"{thresholds[0]:g}°/{thresholds[1]:g} m.\n",
+            markdown_table(stats, columns)]
+
+
 def _sweep_section(sweep_rows: list[dict[str, Any]], paths: StudyPaths, plots: list[Path]) -> list[str]:
     """Report lines for the variant-magnitude sweep (and its plot appended to ``plots``)."""
     if not sweep_rows:
@@ -638,7 +688,8 @@ def _sweep_section(sweep_rows: list[dict[str, Any]], paths: StudyPaths, plots: l
 
 def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]],
                  logs: dict[tuple[str, str], Path], timings: dict[str, float],
-                 sweep_rows: list[dict[str, Any]] | None = None) -> Path:
+                 sweep_rows: list[dict[str, Any]] | None = None,
+                 world_rows: list[dict[str, Any]] | None = None) -> Path:
     """``report.md`` with the paper-shaped tables, placement and defense figures, and the plots."""
     from synthleak.evaluate.absent_pairs import absent_funnel_markdown, presence_by_absent_kind_markdown
     from synthleak.evaluate.defense_sweep import defense_tradeoff
@@ -701,6 +752,7 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         markdown_table([t for t in tradeoff if t.get("tier") == "all"],
                         [k for k in (tradeoff[0] if tradeoff else {}) if k != "tier"]),
         *_sweep_section(sweep_rows or [], paths, plots),
+        *_world_sweep_section(config, world_rows or [], paths, plots),
         "## Plots\n",
         "\n".join(f"![{p.stem}](plots/{p.name})" for p in plots) + "\n",
         "## Wall time per stage (this run; cached stages take ~0 s)\n",
@@ -746,6 +798,7 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
     rows = timed("attack", stage_attack, config, paths, logs, forced)
     sweep_rows = timed("sweep", stage_sweep, config, paths, render_key, maps, forced, progress, server_url,
                        executor)
-    report = timed("report", stage_report, config, paths, rows, logs, timings, sweep_rows)
+    world_rows = timed("world sweep", stage_world_sweep, config, paths, forced, progress, server_url, executor)
+    report = timed("report", stage_report, config, paths, rows, logs, timings, sweep_rows, world_rows)
     atomic_write_text(paths.root / "timings.json", json.dumps(timings, indent=1))
     return report

@@ -290,3 +290,33 @@ def plot_leakage_vs_magnitude(
             if m_idx == 0 and lines:
                 ax.legend(fontsize=6)
     return _save(fig, out)
+
+
+def plot_leakage_vs_world(rows: Sequence[dict], out: str | Path, aligner: str,
+                          thresholds: tuple[float, float]) -> Path:
+    """One panel per swept knob: precision (solid) and recall (dashed) against its value, a colour per tier,
+    for one aligner and threshold pair."""
+    from synthleak.evaluate.world_sweep import WORLD_PARAMS, leakage_vs_world
+
+    stats = [s for s in leakage_vs_world(rows)
+             if s["aligner"] == aligner and (s["delta_r_deg"], s["delta_t_m"]) == tuple(thresholds)]
+    params = [p for p in WORLD_PARAMS if any(s["sweep_param"] == p for s in stats)] or ["–"]
+    tiers = _sorted(s["tier"] for s in stats)
+    fig = Figure(figsize=(4.6 * len(params), 3.6), layout="constrained")
+    for p_idx, param in enumerate(params):
+        ax = fig.add_subplot(1, len(params), p_idx + 1)
+        for t_idx, tier in enumerate(tiers):
+            pts = sorted((s["sweep_value"], s["precision"], s["recall"]) for s in stats
+                         if s["sweep_param"] == param and s["tier"] == tier)
+            xs = [p[0] for p in pts]
+            marker = _MARKERS[t_idx % len(_MARKERS)]
+            ax.plot(xs, [p[1] for p in pts], "-", marker=marker, color=_colour(t_idx), ms=4, label=f"{tier} P")
+            ax.plot(xs, [p[2] for p in pts], "--", marker=marker, color=_colour(t_idx), ms=4, mfc="none",
+                    label=f"{tier} R")
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_xlabel(param)
+        ax.set_title(f"presence vs {param} ({aligner}, {thresholds[0]:g}°/{thresholds[1]:g} m)", fontsize=9)
+        ax.grid(alpha=0.3)
+        if tiers:
+            ax.legend(fontsize=7)
+    return _save(fig, out)
