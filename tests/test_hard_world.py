@@ -172,3 +172,66 @@ def test_skus_are_recorded_in_index_stage_and_attacker(hard_stages):
     attacker = read_scene_spec(out / by_model[room["objects"][0]["model_id"]]["stage"])
     target = next(o for o in attacker.objects if o.instance_id == 100)
     assert target.variant_params["materials"] == room["objects"][0]["skus"]
+
+
+def _room_spec(config, k: int = 0):
+    from synthleak.scene.compose import compose_room
+    from synthleak.scene.plan import plan_study
+
+    library = load_library()
+    return compose_room(plan_study(config, library).rooms[k], library)
+
+
+@pytest.mark.parametrize("k", [0, 1])
+def test_props_and_distractors_obey_the_placement_rules(k):
+    """Clutter props and distractors stand on floors, hang on walls or stand on furniture tops, inside the
+    room, without intersecting anything (rugs excepted: furniture stands on them)."""
+    from test_scene import _check_room
+
+    config = _config(material_sharing=1.0, distractors=(2, 3), clutter=2.0, layout="home",
+                     room_size_x=(4.5, 5.0), room_size_y=(4.0, 4.5))
+    spec = _room_spec(config, k)
+    props = [o for o in spec.objects if o.role == "prop"]
+    assert len(props) >= 10
+    assert {p.support for p in props} >= {"floor", "surface"}
+    assert all(o.instance_id >= 1000 for o in props)
+    supported_by = {int(i): int(h) for i, h in spec.metadata["supported_by"].items()}
+    _check_room(spec.objects, spec.room_size, supported_by)
+
+
+def test_home_layout_backs_furniture_against_walls_and_faces_chairs_to_tables():
+    """Cupboards, beds, sofas, shelves, desks stand with their back to a wall, facing the room; chairs at a
+    table face it; yaws follow the walls."""
+    from synthleak.scene.placement import HOME_RULES
+
+    wall_backed = {c for c, (rule, _) in HOME_RULES.items() if rule == "wall"}
+    config = _config("study-small", distractors=(3, 3), layout="home", models=[
+        "wardrobe", "sofa_2seat", "bookcase", "desk", "table_dining", "chair_ladderback", "chest_drawers",
+        "bed_double", "chair_upholstered", "lamp_floor", "armchair"], objects_per_room=(5, 6))
+    checked = at_table = 0
+    for k in range(3):
+        spec = _room_spec(config, k)
+        x, y, _ = spec.room_size
+        tables = [o for o in spec.objects if o.category in ("table", "desk")]
+        for o in spec.objects:
+            if o.role != "object" or o.support != "floor":
+                continue
+            pose = o.world_from_object
+            yaw = np.degrees(np.arctan2(pose[1, 0], pose[0, 0]))
+            assert min(abs((yaw - a + 180) % 360 - 180) for a in (0, 90, 180, 270)) < 10, o.name
+            if o.category in wall_backed:
+                back = pose[:3, :3] @ np.array([0.0, -1.0, 0.0])
+                centre = pose[:3, 3] + pose[:3, :3] @ np.array([0.0, -0.5 * o.object_extents()[1], 0.0])
+                gap = min(x / 2 - centre[0] if back[0] > 0.5 else np.inf, x / 2 + centre[0] if back[0] < -0.5
+                          else np.inf, y / 2 - centre[1] if back[1] > 0.5 else np.inf,
+                          y / 2 + centre[1] if back[1] < -0.5 else np.inf)
+                assert gap < 0.1, (o.name, gap)
+                checked += 1
+            if o.category == "chair" and tables:
+                front = pose[:3, :3] @ np.array([0.0, 1.0, 0.0])
+                to_table = min((t.world_from_object[:3, 3] - pose[:3, 3] for t in tables),
+                               key=lambda d: np.linalg.norm(d[:2]))
+                if np.linalg.norm(to_table[:2]) < 1.5:
+                    assert front[:2] @ to_table[:2] > 0, o.name
+                    at_table += 1
+    assert checked >= 6 and at_table >= 1

@@ -100,10 +100,11 @@ def _table_mesh(width=1.2, depth=0.8, height=0.75) -> tuple[ObjectMesh, list]:
 
 
 def _check_room(objects: list[PlacedObject], size, supported_by: dict[int, int], openings=()) -> None:
-    """The composer's contract: inside the room, on their supports, no intersections."""
+    """The composer's contract: inside the room, on their supports, no intersections (furniture and clutter
+    props; rugs, flat on the floor, may lie under furniture)."""
     x, y, h = size
     by_id = {o.instance_id: o for o in objects}
-    furniture = [o for o in objects if o.role == "object"]
+    furniture = [o for o in objects if o.role in ("object", "prop")]
     meshes = {o.instance_id: _world_mesh(o.mesh, o.world_from_object) for o in objects}
     for o in furniture:
         lo, hi = meshes[o.instance_id].bounds
@@ -137,8 +138,11 @@ def _check_room(objects: list[PlacedObject], size, supported_by: dict[int, int],
         mesh.apply_translation([0.0, 0.0, lift])
         lifted[o.instance_id] = mesh
     ids = sorted(lifted)
+    flat = {i for i in ids if meshes[i].extents[2] < 0.05}
     for i, a in enumerate(ids):
         for b in ids[i + 1 :]:
+            if (a in flat) != (b in flat):
+                continue
             assert not meshes_intersect(lifted[a], lifted[b]), (by_id[a].name, by_id[b].name)
         for shell in (o for o in objects if o.role == "shell"):
             assert not meshes_intersect(lifted[a], meshes[shell.instance_id]), (by_id[a].name, shell.name)

@@ -93,13 +93,25 @@ class _Room:
         return float(min(self.lo[2] + height, self.hi[2] - 0.3))
 
 
+def _free_spot(room: _Room, centre: np.ndarray, bearing: float, near: float, far: float) -> np.ndarray | None:
+    """The farthest free floor point at most ``far`` and at least ``near`` from ``centre`` along ``bearing``
+    (10 cm steps): a person steps closer when the room is too small to stand back."""
+    direction = np.array([np.cos(bearing), np.sin(bearing)])
+    for d in np.arange(far, near - 1e-9, -0.1):
+        xy = centre[:2] + d * direction
+        if room.free(xy):
+            return xy
+    return None
+
+
 def _view(room: _Room, probe: ViewProbe, rng: np.random.Generator, info: InstanceInfo, bearing: float,
           distance: tuple[float, float], spread_deg: float, tries: int, min_target: float
           ) -> tuple[np.ndarray, float] | None:
     """The best of ``tries`` candidate poses looking at ``info`` from around ``bearing``: (pose, score).
 
-    The distance from the piece's side is what makes it span about 70 % of the view, kept within
-    ``distance`` (so small pieces are seen from nearby, large ones from across the room)."""
+    The wanted distance from the piece's side makes it span about 70 % of the view, within ``distance`` (so
+    small pieces are seen from nearby, large ones from across the room); where the room is too small the
+    camera stands as far back as the free floor allows."""
     centre = _centre(info)
     extents = np.asarray(info.extents, dtype=np.float64)
     radius = 0.5 * float(np.linalg.norm(extents[:2]))
@@ -108,10 +120,10 @@ def _view(room: _Room, probe: ViewProbe, rng: np.random.Generator, info: Instanc
     best: tuple[np.ndarray, float] | None = None
     for _ in range(tries):
         az = bearing + np.radians(float(rng.uniform(-spread_deg, spread_deg)))
-        d = radius + float(np.clip(fill * rng.uniform(0.8, 1.25), *distance))
-        xy = centre[:2] + d * np.array([np.cos(az), np.sin(az)])
+        want = radius + float(np.clip(fill * rng.uniform(0.8, 1.25), *distance))
         height = float(rng.uniform(*EYE_HEIGHT))
-        if not room.free(xy):
+        xy = _free_spot(room, centre, az, min(radius + distance[0], want), want)
+        if xy is None:
             continue
         eye = np.array([xy[0], xy[1], room.eye_z(height)])
         look = centre + rng.normal(0.0, 0.1, 3) * np.array([1.0, 1.0, 0.5])
@@ -150,9 +162,10 @@ def furniture_walkthrough(
     or no free viewpoint: use :func:`~synthleak.render.trajectories.walkthrough` then); ``distance`` bounds
     the camera's distance from a piece's side (metres).
 
-    Pieces are visited in order of their bearing around the room centre; each gets a share of the frames
-    proportional to its size, as an arc sweeping -40..40 degrees about its open side. Each frame is the best of a few
-    candidate viewpoints near its arc position (most furniture in view, the piece itself visible)."""
+    Pieces are visited in order of their bearing around the room centre; each piece that can be seen from
+    some free spot gets a share of the frames proportional to the square root of its frontal area, as an arc
+    sweeping -40..40 degrees about its open side. Each frame is the best of a few candidate viewpoints near
+    its arc position (most furniture in view, the piece itself visible)."""
     if n_frames < 1:
         raise ValueError(f"furniture_walkthrough: n_frames must be >= 1, got {n_frames}")
     targets = _targets(scene)
@@ -161,30 +174,33 @@ def furniture_walkthrough(
     room = _Room(scene, wall_margin, clearance)
     room_centre = 0.5 * (room.lo + room.hi)
     probe = ViewProbe(scene, hfov_deg, aspect)
-    bearings = [float(np.arctan2(*(_centre(t)[:2] - room_centre[:2])[::-1])) for t in targets]
+    fronts = [_front(t, room_centre) for t in targets]
+    seen = [k for k, t in enumerate(targets)
+            if _view(room, probe, rng, t, fronts[k], distance, 180.0, 16, 0.02) is not None]
+    if not seen:
+        return None
+    bearings = {k: float(np.arctan2(*(_centre(targets[k])[:2] - room_centre[:2])[::-1])) for k in seen}
     start = rng.uniform(-np.pi, np.pi)
-    order = sorted(range(len(targets)), key=lambda k: (bearings[k] - start) % (2 * np.pi))
+    order = sorted(seen, key=lambda k: (bearings[k] - start) % (2 * np.pi))
     if rng.random() < 0.5:
         order = order[::-1]
-    shares = _apportion(n_frames, [float(np.linalg.norm(targets[k].extents)) for k in order])
+    frontal = [np.asarray(targets[k].extents, dtype=np.float64) for k in order]
+    shares = _apportion(n_frames, [float(np.sqrt(max(e[0], e[1]) * e[2])) for e in frontal])
     poses: list[np.ndarray] = []
-    fallback: np.ndarray | None = None
     for k, count in zip(order, shares, strict=True):
         info = targets[k]
-        front = _front(info, room_centre)
         for j in range(int(count)):
             sweep = np.radians(-40.0 + 80.0 * (j + 0.5) / count)
-            view = _view(room, probe, rng, info, front + sweep, distance, 20.0, 8, 0.02)
+            view = _view(room, probe, rng, info, fronts[k] + sweep, distance, 20.0, 8, 0.02)
             if view is None:  # no free spot in front of it: anywhere around it
-                view = _view(room, probe, rng, info, front, distance, 180.0, 16, 0.0)
+                view = _view(room, probe, rng, info, fronts[k], distance, 180.0, 32, 0.0)
             if view is not None:
-                fallback = view[0]
-            poses.append(view[0] if view is not None else fallback)
-    if fallback is None:
+                poses.append(view[0])
+            elif poses:  # (rare) no free spot left: hold the previous view
+                poses.append(poses[-1])
+    if len(poses) < n_frames:  # the first piece found no view at all for its first frames
         return None
-    # pieces without any free viewpoint at the start of the tour repeat the first good view
-    first = next(p for p in poses if p is not None)
-    return [first if p is None else p for p in poses]
+    return poses
 
 
 def closeup_views(

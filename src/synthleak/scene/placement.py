@@ -357,7 +357,8 @@ class Placer:
                 continue
             pose = host_pl.world_from_object @ host_from_object
             body = body_of(item.name, item.bounds, pose)
-            if self.inside.contains(body.footprint) and self._free(body, ignore={name}, gap=0.02):
+            if (self.inside.contains(body.footprint) and body.z1 <= self.height - 0.02
+                    and self._free(body, ignore={name}, gap=0.02)):
                 return Placement(item.name, pose, "surface", name)
         return None
 
