@@ -8,7 +8,9 @@ SKU's physical scale (``texel_scale`` metres per texture), so two products using
 A model's material slot may use a SKU of a family that fits the slot's texture kind (:data:`FAMILIES_BY_KIND`).
 :func:`assign_materials` draws, per study seed and (model, slot), whether the slot uses a shared SKU
 (probability ``material_sharing``) and which one; the draws do not depend on ``material_sharing`` itself, so
-the slots shared at a lower sharing stay shared at a higher one. ``material_sharing = 0`` leaves every model as
+the slots shared at a lower sharing stay shared at a higher one. As in a furniture store, a few finishes are
+far more common than the rest: families and SKUs are listed most popular first and drawn with weights
+``1 / rank`` (the first laminate is on about 40 % of laminated slots). ``material_sharing = 0`` leaves every model as
 the library defines it (same texture bytes). :func:`with_materials` applies an assignment to a model.
 """
 
@@ -203,10 +205,16 @@ def assign_materials(model: ObjectModel, seed: int, sharing: float) -> dict[str,
             continue
         rng = make_rng(seed, "materials", model.model_id, slot)
         u = float(rng.random())
-        family = FAMILIES[families[int(rng.integers(len(families)))]]
-        sku = family[int(rng.integers(len(family)))]
+        family = FAMILIES[families[_popular(rng, len(families))]]
+        sku = family[_popular(rng, len(family))]
         out[slot] = sku.sku_id if u < sharing else UNIQUE
     return out
+
+
+def _popular(rng: np.random.Generator, n: int) -> int:
+    """An index in ``range(n)`` drawn with weights ``1 / (index + 1)`` (the first is the most popular)."""
+    weights = 1.0 / np.arange(1, n + 1)
+    return int(rng.choice(n, p=weights / weights.sum()))
 
 
 def with_materials(model: ObjectModel, assignment: Mapping[str, str]) -> ObjectModel:
