@@ -10,6 +10,8 @@ import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from synthleak.errors import SynthleakError
+
 
 def _cmd_objects(args: argparse.Namespace) -> None:
     from rich.console import Console
@@ -144,7 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("render", _cmd_render, "render the sequences of already written stages")
     p.add_argument("config")
-    p.add_argument("--stages", required=True, help="folder written by `synthleak scenes`")
+    p.add_argument("--stages", required=True,
+                   help="folder written by `synthleak scenes`, a folder of USD stages, or one stage file")
     p.add_argument("--out", required=True, help="dataset folder")
 
     p = command("generate", _cmd_generate, "stages + renders in one go (resumable)")
@@ -219,8 +222,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, _exit_on_sigterm)
     try:
         args.handler(args)
-    except (ValueError, FileNotFoundError, KeyError) as exc:  # our errors name the file and the field
-        print(f"synthleak {args.command}: error: {exc}", file=sys.stderr)
+    except (SynthleakError, ValueError, OSError) as exc:  # our errors name the file and the field
+        message = " ".join(str(exc).split())  # one line, whatever the message holds
+        print(f"synthleak {args.command}: error: {message}", file=sys.stderr)
         return 2
     return 0
 

@@ -18,6 +18,8 @@ from typing import Any, TypeVar
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from synthleak.errors import MissingDependencyError, SynthleakError
+
 T = TypeVar("T")
 R = TypeVar("R")
 
@@ -57,7 +59,7 @@ def threads_per_worker(workers: int) -> int:
     return max(1, (os.cpu_count() or 1) // max(1, int(workers)))
 
 
-class ExecutorError(RuntimeError):
+class ExecutorError(SynthleakError, RuntimeError):
     """A task that failed in a worker; the message names the task."""
 
 
@@ -169,8 +171,9 @@ class RayExecutor(Executor):
         try:
             import ray
         except ImportError as exc:
-            raise ImportError("the ray executor needs Ray: pip install -e '.[ray]' (or pip install 'ray[default]')"
-                              ) from exc
+            raise MissingDependencyError(
+                "the ray executor needs Ray: pip install -e '.[ray]' (or pip install 'ray[default]')"
+            ) from exc
         self._ray = ray
         self._started = False
         if not ray.is_initialized():

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from synthleak.atomic_io import TEMP_PREFIX, atomic_write_bytes, atomic_write_text
+from synthleak.errors import SynthleakError
 from synthleak.geometry.poses import (
     check_pose,
     invert,
@@ -29,7 +30,7 @@ BOP_DEPTH_SCALE = 0.25
 """BOP 16-bit depth PNGs hold depth_mm / BOP_DEPTH_SCALE: 0.25 mm steps up to 16.4 m (0.1 would stop at 6.5 m)."""
 
 
-class DatasetError(ValueError):
+class DatasetError(SynthleakError, ValueError):
     """A malformed dataset file; the message names the file and the field."""
 
 

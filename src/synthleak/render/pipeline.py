@@ -21,6 +21,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from synthleak.cache import MARKER
 from synthleak.config import StudyConfig, config_to_dict
+from synthleak.errors import StageError
 from synthleak.executors import Executor, LocalExecutor, chunks
 from synthleak.render.base import Camera, RenderScene
 from synthleak.render.bop_full import write_bop_extras
@@ -54,10 +55,6 @@ PACKAGES = (
     "pillow",
     "rich",
 )
-
-
-class StageError(RuntimeError):
-    """A stage file that is missing or cannot be read; the message names the file."""
 
 
 def _progress(enabled: bool) -> Progress:
@@ -270,18 +267,85 @@ def _read_index(stages_dir: Path) -> dict[str, Any]:
     return index
 
 
+STAGE_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+"""File name suffixes of USD stages."""
+
+
+def _root_layer(path: Path) -> Any:
+    """The root layer of the stage file at ``path`` (no composition); a StageError naming the file otherwise."""
+    from pxr import Sdf
+
+    try:
+        layer = Sdf.Layer.FindOrOpen(str(path))
+    except Exception as exc:  # noqa: BLE001 - pxr raises Tf.ErrorException with a multi-line message
+        raise StageError(f"{path}: cannot read stage: {' '.join(str(exc).split())}") from exc
+    if layer is None:
+        raise StageError(f"{path}: cannot read stage")
+    return layer
+
+
+def _stage_kind(path: Path) -> str:
+    """``attacker`` for a stage whose root layer names a target instance (``synthleak:targetInstanceId`` >= 0 in
+    its customLayerData, as `synthleak scenes` writes attacker setups), else ``scene``."""
+    layer = _root_layer(path)
+    target = dict(layer.customLayerData or {}).get("synthleak:targetInstanceId", -1)
+    return "attacker" if target is not None and int(target) >= 0 else "scene"
+
+
+def root_stages(folder: Path) -> list[Path]:
+    """The stage files directly in ``folder`` that no other stage there uses as a sublayer, reference or payload
+    (those are parts of a stage, not stages to render), sorted by name."""
+    files = sorted(p for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in STAGE_SUFFIXES)
+    used: set[Path] = set()
+    for path in files:
+        layer = _root_layer(path)
+        used |= {Path(layer.ComputeAbsolutePath(dep)).resolve() for dep in layer.GetCompositionAssetDependencies()}
+    return [p for p in files if p.resolve() not in used]
+
+
+def stage_jobs(stages: Path, out_dir: Path) -> list[SequenceJob]:
+    """The sequences of ``stages``: the rooms (``out_dir/scenes/<room>``) and attacker objects
+    (``out_dir/attackers/<id>``) of ``stages/index.json`` as `synthleak scenes` writes it; else, for stages
+    written by other tools, one stage file or every root stage of a folder (:func:`root_stages`), each a
+    sequence named after its file: an attacker sequence (``out_dir/attackers/<stem>``) when the stage names a
+    target instance, a scene sequence (``out_dir/scenes/<stem>``) otherwise."""
+    stages, out_dir = Path(stages), Path(out_dir)
+    if stages.is_dir() and (stages / "index.json").is_file():
+        index = _read_index(stages)
+        jobs = [(stages / r["stage"], out_dir / "scenes" / r["name"], "scene") for r in index["rooms"]]
+        jobs += [(stages / a["stage"], out_dir / "attackers" / a["id"], "attacker")
+                 for a in index["attacker_objects"]]
+        missing = [str(stage) for stage, _, _ in jobs if not stage.is_file()]
+        if missing:
+            raise StageError(f"{stages / 'index.json'}: stage files do not exist: {', '.join(missing)}")
+        return [SequenceJob(stage, seq_dir, kind) for stage, seq_dir, kind in jobs]
+    if stages.is_file():
+        if stages.suffix.lower() not in STAGE_SUFFIXES:
+            raise StageError(f"{stages}: not a USD stage (expected {', '.join(STAGE_SUFFIXES)}) or a stage folder")
+        files = [stages]
+    elif stages.is_dir():
+        files = root_stages(stages)
+        if not files:
+            raise StageError(f"{stages}: no index.json and no USD stage ({', '.join(STAGE_SUFFIXES)}) in the folder")
+    else:
+        raise StageError(f"{stages}: no such stage file or folder")
+    stems = [p.stem for p in files]
+    clashes = sorted({s for s in stems if stems.count(s) > 1})
+    if clashes:
+        raise StageError(f"{stages}: several stage files are named {clashes[0]!r} (sequences are named after files)")
+    jobs = []
+    for path in files:
+        kind = _stage_kind(path)
+        jobs.append(SequenceJob(path, out_dir / ("attackers" if kind == "attacker" else "scenes") / path.stem, kind))
+    return jobs
+
+
 def render_stages(config: StudyConfig, stages_dir: Path, out_dir: Path, progress: bool = True,
                   executor: Executor | None = None) -> Path:
-    """Render every room (``out_dir/scenes/<room>``) and attacker object (``out_dir/attackers/<id>``) of
-    ``stages_dir/index.json``, then write ``out_dir/manifest.json``."""
-    stages_dir, out_dir = Path(stages_dir), Path(out_dir)
-    index = _read_index(stages_dir)
-    jobs = [(stages_dir / r["stage"], out_dir / "scenes" / r["name"], "scene") for r in index["rooms"]]
-    jobs += [(stages_dir / a["stage"], out_dir / "attackers" / a["id"], "attacker") for a in index["attacker_objects"]]
-    missing = [str(stage) for stage, _, _ in jobs if not stage.is_file()]
-    if missing:
-        raise StageError(f"{stages_dir / 'index.json'}: stage files do not exist: {', '.join(missing)}")
-    render_sequences([SequenceJob(stage, seq_dir, kind) for stage, seq_dir, kind in jobs], config, executor, progress)
+    """Render every sequence of ``stages_dir`` (:func:`stage_jobs`: a folder written by `synthleak scenes`, a
+    folder of stages written by other tools, or one stage file), then write ``out_dir/manifest.json``."""
+    out_dir = Path(out_dir)
+    render_sequences(stage_jobs(Path(stages_dir), out_dir), config, executor, progress)
     write_manifest(out_dir, config)
     return out_dir
 

@@ -18,6 +18,7 @@ from shapely.affinity import affine_transform
 from shapely.geometry import Polygon, box
 
 from synthleak.assets.mesh import ObjectMesh
+from synthleak.errors import SynthleakError
 from synthleak.geometry.poses import make_pose, transform_points
 from synthleak.scene.room import RoomShell, yaw_matrix
 
@@ -29,7 +30,7 @@ SURFACE_MARGIN = 0.01
 """Minimum inset of a surface object's footprint from its support rectangle's edges (m)."""
 
 
-class PlacementError(RuntimeError):
+class PlacementError(SynthleakError, RuntimeError):
     """An object that does not fit in its room under the placement rules."""
 
 

@@ -30,16 +30,13 @@ import numpy as np
 from pxr import Gf, Kind, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdValidation, Vt
 
 from synthleak.assets.mesh import ObjectMesh, TexturedPart
+from synthleak.errors import StageError
 from synthleak.render.base import InstanceInfo, RenderMesh, RenderScene
 from synthleak.scene.spec import Light, PlacedObject, SceneSpec
 from synthleak.scene.texture_store import load_texture, store_texture
 
 NS = "synthleak:"
 _DEFAULT_COLOUR = (0.7, 0.7, 0.7)
-
-
-class StageError(ValueError):
-    """A stage that cannot be read; the message names the file and, where known, the prim."""
 
 
 # ----------------------------------------------------------------------------------------------- writing
