@@ -9,9 +9,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from tiny_stages import write_config, write_cornell_box
 
 from synthleak.errors import StageError, SynthleakError
+from tiny_stages import write_config, write_cornell_box
 
 
 def run_cli(*args: str, env: dict[str, str] | None = None, cwd: Path | None = None) -> subprocess.CompletedProcess:

@@ -237,15 +237,23 @@ ATTACKER_WRAPPER = """#usda 1.0
     customLayerData = {
         int "synthleak:targetInstanceId" = 1
     }
-    defaultPrim = "Box"
-    subLayers = [@./asset.usda@]
+    defaultPrim = "World"
+    metersPerUnit = 0.01
+    upAxis = "Y"
 )
 
-over "Box"
+def Xform "World"
 {
-    custom int synthleak:instanceId = 1
+    def "Box" (
+        prepend references = @./asset.usda@
+    )
+    {
+        custom int synthleak:instanceId = 1
+    }
 }
 """
+"""An attacker setup around a foreign asset without editing it (docs/your-own-models.md): a layer that
+references it, tags it with an instance id and names that id as the target."""
 
 
 def test_folder_of_foreign_stages_renders_without_an_index(tmp_path: Path) -> None:
@@ -255,9 +263,8 @@ def test_folder_of_foreign_stages_renders_without_an_index(tmp_path: Path) -> No
     import subprocess
     import sys
 
-    from tiny_stages import write_config
-
     from synthleak.render.dataset import load_sequence
+    from tiny_stages import write_config
 
     folder = tmp_path / "stages"
     folder.mkdir()

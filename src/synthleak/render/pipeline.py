@@ -91,6 +91,10 @@ def plan_poses(scene: RenderScene, config: StudyConfig, kind: str, name: str) ->
     if kind == "attacker":
         if scene.target_instance_id is None:
             raise StageError(f"{scene.source or name}: attacker stage has no target_instance_id")
+        target = scene.instances.get(scene.target_instance_id)
+        if target is None or not np.any(np.asarray(target.extents) > 0):
+            raise StageError(f"{scene.source or name}: synthleak:targetInstanceId {scene.target_instance_id} is "
+                             f"{'not an instance' if target is None else 'an instance without geometry'} of the stage")
         return orbit(
             scene,
             scene.target_instance_id,
