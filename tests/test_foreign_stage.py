@@ -281,7 +281,11 @@ def test_folder_of_foreign_stages_renders_without_an_index(tmp_path: Path) -> No
     assert len(room.frames) == 4 and all(room.image_path(f).is_file() for f in room.frames)
     attacker = load_sequence(out / "attackers" / "attacker_box")
     assert attacker.kind == "attacker" and attacker.target_instance_id == 1 and len(attacker.frames) == 2
-    assert attacker.instance(attacker.frames[0]).max() == 1  # the box is in view
+    for seq in (room, attacker):  # no light in these stages: the default light (and a warning) lights them
+        hit = np.isfinite(seq.depth(seq.frames[0]))
+        lit = seq.rgb(seq.frames[0]).max(axis=-1) > 10
+        assert hit.sum() > 100 and (lit & hit).sum() > 0.6 * hit.sum(), (seq.name, (lit & hit).sum(), hit.sum())
+    assert "the stage has no light" in result.stderr
     assert (out / "manifest.json").is_file()
 
     single = tmp_path / "single"

@@ -92,11 +92,11 @@ def _register_each_light(mi: Any) -> None:
     """Register :data:`EACH_LIGHT`: the ``direct`` integrator's job for delta lights, without its noise.
 
     For every camera sample it intersects once, adds the radiance of an emissive surface hit, then adds
-    every delta emitter's (point, directional) contribution with its own shadow ray and BSDF evaluation.
-    Summing all lights per sample (mitsuba's ``direct`` picks one at random per sample) leaves no light-
-    selection noise, and one primary intersection serves every light (the per-light passes of the scalar
-    variant trace it once per pass). Emissive meshes glow where seen but light nothing (non-delta emitters
-    are skipped; the scalar variant's first pass samples them as area lights, with grain); a miss is black
+    every emitter's contribution with its own shadow ray and BSDF evaluation: delta emitters (point,
+    directional) exactly, emissive meshes (area emitters) from one point sampled on them, as the scalar
+    variant's first pass does (with the same soft-shadow grain). Summing all lights per sample (mitsuba's
+    ``direct`` picks one at random per sample) leaves no light-selection noise, and one primary intersection
+    serves every light (the per-light passes of the scalar variant trace it once per pass); a miss is black
     (deterministic lighting has no environment emitter)."""
 
     class EachLight(mi.SamplingIntegrator):
@@ -106,9 +106,9 @@ def _register_each_light(mi: Any) -> None:
             result = mi.Spectrum(si.emitter(scene, valid).eval(si, valid))
             bsdf, ctx = si.bsdf(ray), mi.BSDFContext()
             for emitter in scene.emitters():
-                if not mi.has_flag(emitter.flags(), mi.EmitterFlags.Delta):
-                    continue
-                ds, weight = emitter.sample_direction(si, mi.Point2f(0.5, 0.5), valid)
+                delta = mi.has_flag(emitter.flags(), mi.EmitterFlags.Delta)
+                sample = mi.Point2f(0.5, 0.5) if delta else sampler.next_2d(valid)
+                ds, weight = emitter.sample_direction(si, sample, valid)
                 lit = valid & (ds.pdf != 0.0)
                 lit &= ~scene.ray_test(si.spawn_ray_to(ds.p), lit)
                 result[lit] += bsdf.eval(ctx, si, si.to_local(ds.d), lit) * weight

@@ -37,6 +37,7 @@ from synthleak.render.dataset import (
     write_frame,
     write_sequence_metadata,
 )
+from synthleak.render.lighting import with_default_light
 from synthleak.render.registry import get_renderer
 from synthleak.render.trajectories import orbit, walkthrough
 from synthleak.seeding import derive_seed, make_rng
@@ -125,7 +126,8 @@ class SequenceJob:
         self.name = self.name or self.out_dir.name
 
     def scene(self) -> RenderScene:
-        return self.stage if isinstance(self.stage, RenderScene) else load_stage(self.stage)
+        """The stage as a render scene; a stage with no light at all gets the default light (and a warning)."""
+        return with_default_light(self.stage if isinstance(self.stage, RenderScene) else load_stage(self.stage))
 
 
 @dataclass
