@@ -233,3 +233,32 @@ def test_oversize_and_flag_errors(tmp_path, monkeypatch) -> None:
         import_model(_write(tmp_path / "x.fbx", "x"), "chair", library_dir=lib)
     assert _snapshot(lib) == before
     assert not list(lib.rglob(".tmp-*"))
+
+
+def test_the_library_lists_imported_models(tmp_path) -> None:
+    """`synthleak import`, then `synthleak objects` (table and --json) lists the model: through the real CLI."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    lib = _library(tmp_path)
+    path, _ = _export(tmp_path, ".glb")
+    env = {**os.environ, "SYNTHLEAK_OBJECT_LIBRARY": str(lib), "COLUMNS": "200"}
+
+    def cli(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "synthleak.cli", *args], capture_output=True, text=True,
+                              env=env, timeout=300)
+
+    result = cli("import", str(path), "--category", "crate", "--name", "my_crate", "--up", "y", "--front=-z",
+                 "--units", "cm")
+    assert result.returncode == 0, result.stderr
+    listed = cli("objects", "--json")
+    assert listed.returncode == 0, listed.stderr
+    rows = {row["id"]: row for row in json.loads(listed.stdout)}
+    assert set(rows) == {"stool_round", "my_crate"}
+    assert rows["my_crate"]["builder"] == "imported" and rows["my_crate"]["category"] == "crate"
+    assert rows["my_crate"]["textures"] == {"part_000": "imported"}
+    table = cli("objects")
+    assert table.returncode == 0, table.stderr
+    assert "my_crate" in table.stdout and "stool_round" in table.stdout and "imported" in table.stdout
