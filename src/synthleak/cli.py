@@ -160,7 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", help="model id (default: from the file name)")
     p.add_argument("--up", default="z", choices=["z", "y", "+z", "+y", "-z", "-y", "x", "+x", "-x"],
                    help="the file's up axis")
-    p.add_argument("--front", default="+y", help="the file's front axis (+y, +z, ...; negative: --front=-z)")
+    p.add_argument("--front", default=None,
+                   help="the file's front axis (+y, +z, ...; negative: --front=-z); default: +z with --up y "
+                        "(glTF faces +z), else +y")
     p.add_argument("--units", default="m", choices=["m", "cm", "mm", "in", "ft"])
     size = p.add_mutually_exclusive_group()
     size.add_argument("--height", type=float, help="scale uniformly to this height in metres")
