@@ -49,6 +49,7 @@ from synthleak.assets.import_store import (
     ply_bytes,
 )
 from synthleak.assets.library import SUPPORTS, SYMMETRIES, ObjectModel
+from synthleak.atomic_io import folder_mode
 from synthleak.render.dataset import encode_png
 
 MAX_IMPORT_BYTES = 2 * 1024**3
@@ -418,6 +419,7 @@ def _write_folder(target: Path, files: dict[str, bytes]) -> None:
     """Write ``files`` into a temporary sibling folder, then rename it onto ``target`` (replacing it)."""
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{target.name}-", dir=target.parent))
+    tmp.chmod(folder_mode())  # mkdtemp makes it 0700: give the model folder a plain folder's mode
     old = None
     try:
         for name, data in files.items():
