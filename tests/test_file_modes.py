@@ -9,9 +9,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from tiny_stages import write_cornell_box
 
 from synthleak.atomic_io import atomic_write_bytes, atomic_write_text
+from tiny_stages import write_cornell_box
 
 
 @pytest.fixture(params=[0o022, 0o027])
@@ -36,11 +36,10 @@ def test_atomic_writes_follow_the_umask(tmp_path: Path, umask: int) -> None:
 
 
 def test_a_rendered_sequence_and_an_imported_model_are_readable_by_others(tmp_path: Path, umask: int) -> None:
-    from test_import import _export, _library
-
     from synthleak.assets.importer import import_model
     from synthleak.config import RenderConfig, StudyConfig
     from synthleak.render.pipeline import render_sequence, write_manifest
+    from test_import import _export, _library
 
     config = StudyConfig(name="modes", render=RenderConfig(width=32, height=24, spp=1, scene_frames=2, query_every=2))
     out = tmp_path / "dataset"

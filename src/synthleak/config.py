@@ -219,7 +219,8 @@ class RenderConfig:
     """Every n-th walk-through frame is held out as a genuine query and kept out of the map."""
     bop_extras: bool = True
     """Write the whole BOP layout after each sequence (full/visible masks, scene_gt_info, 16-bit depth, models);
-    false keeps only bop/scene_gt.json and scene_camera.json (the attack study does not read the extras)."""
+    false keeps only bop/scene_gt.json, scene_camera.json and rgb/ (hard links to the images; the attack study
+    does not read the extras)."""
     raster_shadows: bool = True
     """pyrender only: shadow maps for rect (spot) and distant lights; off renders RGB about 2x faster."""
     mitsuba_variant: str = "scalar_rgb"

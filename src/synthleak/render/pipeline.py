@@ -34,6 +34,7 @@ from synthleak.render.dataset import (
     frame_name,
     make_split,
     to_object_frame,
+    write_bop_rgb,
     write_frame,
     write_sequence_metadata,
 )
@@ -220,6 +221,8 @@ def render_sequences(
         tasks += plan_sequence(job, config)
     executor.map(render_frame_task, tasks, "render frames", progress)
     _WORKER_RENDERER.clear()  # the serial path renders in this process: free the last scene
+    for job in jobs:  # the BOP scene folder's rgb/ (hard links: cheap, so also without the extras)
+        write_bop_rgb(job.out_dir)
     if config.render.bop_extras:
         started = {id(t.job) for t in tasks}
         extras = [job for job in jobs
