@@ -118,12 +118,13 @@ def _cmd_localize(args: argparse.Namespace) -> None:
 
 
 def _cmd_study(args: argparse.Namespace) -> None:
+    from synthleak import study
     from synthleak.config import load_config
-    from synthleak.study import run_study
+    from synthleak.executors import usable_cpus
 
-    report = run_study(load_config(args.config), Path(args.out), force=args.force or [],
-                       server_url=args.server, progress=not args.quiet, workers=args.workers,
-                       executor=args.executor, address=args.address)
+    report = study.run_study(load_config(args.config), Path(args.out), force=args.force or [],
+                             server_url=args.server, progress=not args.quiet, workers=args.workers or usable_cpus(),
+                             executor=args.executor, address=args.address)
     print(f"report written to {report}")
 
 
@@ -205,7 +206,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="append", metavar="STAGE",
                    help="redo a stage: render, maps, features, queries, attack, report (repeatable)")
     p.add_argument("--server", help="attack a running HTTP server instead of in-process localizers")
-    p.add_argument("--workers", type=int, default=1, help="worker processes for rendering and queries")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes for frames, maps and queries (default: the usable cores; 1: no pool)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="where frames, maps and queries run: local processes or Ray tasks (pip install -e .[ray])")
     p.add_argument("--address", default=None,
