@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -393,8 +392,6 @@ def _corrupt(text: str) -> str:
 
 
 def test_broken_stage_reference(tmp_path):
-    if importlib.util.find_spec("synthleak.scene.usd_io") is None:
-        pytest.skip("synthleak.scene.usd_io (scene engineer) not available yet")
     stage = tmp_path / "room_broken.usda"
     stage.write_text(
         '#usda 1.0\n(\n    defaultPrim = "World"\n)\n\ndef Xform "World" (\n'
@@ -452,11 +449,10 @@ def test_orbit_frames_the_target(support):
         assert np.all((elevations > 5) & (elevations < 65))
 
 
-# ------------------------------------------------------------------------------ real stages (scene engineer)
+# ------------------------------------------------------------------------ real stages (`synthleak scenes`)
 @pytest.fixture(scope="module")
 def real_dataset(tmp_path_factory):
-    """ci-tiny stages from the scene engineer's writer, rendered tiny: 3 walk-through, 2 orbit frames."""
-    pytest.importorskip("synthleak.scene.generate", reason="scene engineer's stage writer not available")
+    """ci-tiny stages from synthleak's stage writer, rendered tiny: 3 walk-through, 2 orbit frames."""
     from synthleak.config import load_config
     from synthleak.render.pipeline import generate
 
