@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 
-from synthleak.errors import StageError, SynthleakError
 from tiny_stages import write_config, write_cornell_box
 
 
@@ -33,6 +32,7 @@ def assert_one_line_error(result: subprocess.CompletedProcess, command: str, *ne
 
 def test_error_classes_share_one_base() -> None:
     from synthleak.config import ConfigError
+    from synthleak.errors import StageError, SynthleakError
     from synthleak.executors import ExecutorError
     from synthleak.render.dataset import DatasetError
     from synthleak.render.pipeline import StageError as PipelineStageError
