@@ -326,7 +326,7 @@ def test_determinism_and_resume(tmp_path, room):
     assert full == tree_hashes(b.parent)  # same seed, same bytes, manifest included
     bop_extras = ("bop/scene_gt_info.json", "bop/mask/", "bop/mask_visib/", "bop/depth/", "bop/models/")
     core = [k for k in full if not any(part in k for part in bop_extras)]
-    assert len(core) == 5 * 3 + 7 + 1  # 3 files per frame, 7 metadata files, the manifest
+    assert len(core) == 5 * 4 + 7 + 1  # 3 files per frame and its bop/rgb link, 7 metadata files, the manifest
     assert sum("bop/mask_visib/" in k for k in full) > 0  # the full BOP layout is written too
     # simulate an interrupt: frames partly missing, a stray temp file, metadata not yet written
     (b / "images" / "000002.png").unlink()
