@@ -11,7 +11,7 @@ import trimesh
 
 from synthleak.assets.builders import SupportSurface
 from synthleak.assets.mesh import ObjectMesh
-from synthleak.config import ConfigError, config_from_dict
+from synthleak.config import ConfigError, config_from_dict, config_to_dict
 from synthleak.geometry.poses import transform_points
 from synthleak.scene.attacker_env import CANOPY_HEIGHT, PEDESTAL_HEIGHT, _target_pose_and_props, hall_shell
 from synthleak.scene.placement import Item, place_items
@@ -307,14 +307,7 @@ def test_plan_distinct_objects_and_repeats(library: dict) -> None:
         config_from_dict(
             {
                 "seed": 6,
-                "scenes": config.scenes.__dict__
-                | {
-                    "objects_per_room": [4, 6],
-                    "room_size_x": [4.0, 6.0],
-                    "room_size_y": [3.5, 5.0],
-                    "room_height": [2.5, 2.8],
-                    "lights_per_room": [2, 4],
-                },
+                "scenes": config_to_dict(config)["scenes"],
             }
         ),
         library,
@@ -372,10 +365,10 @@ def test_attacker_target_support(support: str) -> None:
 
 
 def _covering_models(library: dict) -> list[str]:
-    """One model per placement rule (host furniture, surface, wall, ceiling, plain floor), when available."""
-    from synthleak.scene.plan import model_offers_support
+    """One furniture model per placement rule (host furniture, surface, wall, ceiling, plain floor)."""
+    from synthleak.scene.plan import is_prop, model_offers_support
 
-    ids = sorted(library)
+    ids = sorted(m for m in library if not is_prop(library[m]))
     hosts = [m for m in ids if model_offers_support(library[m])]
     groups = [
         hosts,

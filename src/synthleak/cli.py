@@ -10,6 +10,8 @@ import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from synthleak.errors import SynthleakError
+
 
 def _cmd_objects(args: argparse.Namespace) -> None:
     from rich.console import Console
@@ -118,12 +120,13 @@ def _cmd_localize(args: argparse.Namespace) -> None:
 
 
 def _cmd_study(args: argparse.Namespace) -> None:
+    from synthleak import study
     from synthleak.config import load_config
-    from synthleak.study import run_study
+    from synthleak.executors import usable_cpus
 
-    report = run_study(load_config(args.config), Path(args.out), force=args.force or [],
-                       server_url=args.server, progress=not args.quiet, workers=args.workers,
-                       executor=args.executor, address=args.address)
+    report = study.run_study(load_config(args.config), Path(args.out), force=args.force or [],
+                             server_url=args.server, progress=not args.quiet, workers=args.workers or usable_cpus(),
+                             executor=args.executor, address=args.address)
     print(f"report written to {report}")
 
 
@@ -147,7 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("render", _cmd_render, "render the sequences of already written stages")
     p.add_argument("config")
-    p.add_argument("--stages", required=True, help="folder written by `synthleak scenes`")
+    p.add_argument("--stages", required=True,
+                   help="folder written by `synthleak scenes`, a folder of USD stages, or one stage file")
     p.add_argument("--out", required=True, help="dataset folder")
 
     p = command("generate", _cmd_generate, "stages + renders in one go (resumable)")
@@ -160,7 +164,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", help="model id (default: from the file name)")
     p.add_argument("--up", default="z", choices=["z", "y", "+z", "+y", "-z", "-y", "x", "+x", "-x"],
                    help="the file's up axis")
-    p.add_argument("--front", default="+y", help="the file's front axis (+y, +z, ...; negative: --front=-z)")
+    p.add_argument("--front", default=None,
+                   help="the file's front axis (+y, +z, ...; negative: --front=-z); default: +z with --up y "
+                        "(glTF faces +z), else +y")
     p.add_argument("--units", default="m", choices=["m", "cm", "mm", "in", "ft"])
     size = p.add_mutually_exclusive_group()
     size.add_argument("--height", type=float, help="scale uniformly to this height in metres")
@@ -203,7 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="append", metavar="STAGE",
                    help="redo a stage: render, maps, features, queries, attack, report (repeatable)")
     p.add_argument("--server", help="attack a running HTTP server instead of in-process localizers")
-    p.add_argument("--workers", type=int, default=1, help="worker processes for rendering and queries")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes for frames, maps and queries (default: the usable cores; 1: no pool)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="where frames, maps and queries run: local processes or Ray tasks (pip install -e .[ray])")
     p.add_argument("--address", default=None,
@@ -222,8 +229,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, _exit_on_sigterm)
     try:
         args.handler(args)
-    except (ValueError, FileNotFoundError, KeyError) as exc:  # our errors name the file and the field
-        print(f"synthleak {args.command}: error: {exc}", file=sys.stderr)
+    except (SynthleakError, ValueError, OSError) as exc:  # our errors name the file and the field
+        message = " ".join(str(exc).split())  # one line, whatever the message holds
+        print(f"synthleak {args.command}: error: {message}", file=sys.stderr)
         return 2
     return 0
 

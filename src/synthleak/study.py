@@ -16,9 +16,10 @@ from typing import Any
 
 import numpy as np
 
+from synthleak.assets.mesh import VARIANT_KINDS
 from synthleak.atomic_io import atomic_write_bytes, atomic_write_text
 from synthleak.cache import cache_key, done_key, is_done, mark_done
-from synthleak.config import StudyConfig, config_to_dict
+from synthleak.config import StudyConfig, check_config, config_to_dict
 from synthleak.executors import Executor, LocalExecutor
 
 STAGES = ("render", "maps", "features", "queries", "attack", "report")
@@ -375,6 +376,10 @@ def read_query_log(path: Path) -> list[dict[str, Any]]:
 
 
 # ----------------------------------------------------------------------------------------------- attack
+LOCAL_MODELS = ("oracle", "sfm")
+"""``attack.local_model``: the attacker's local poses from ground truth, or from pycolmap SfM."""
+
+
 def _attacker_local_model(config: StudyConfig, sfm_root: Path, obj_id: str, seq: Any
                           ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """The attacker's local poses (``cam_from_object`` / ``cam_from_local``) and, for SfM, the
@@ -387,7 +392,7 @@ def _attacker_local_model(config: StudyConfig, sfm_root: Path, obj_id: str, seq:
         target = seq.objects_by_id()[seq.target_instance_id]
         model = sfm_local_poses(seq, target.extents, sfm_root / obj_id)
         return dict(model.cam_from_local), model.object_from_local
-    raise ValueError(f"attack.local_model: unknown value {config.attack.local_model!r} (oracle, sfm)")
+    raise ValueError(f"attack.local_model: unknown value {config.attack.local_model!r} ({', '.join(LOCAL_MODELS)})")
 
 
 def _map_points_per_instance(map_dir: Path) -> dict[int, int] | None:
@@ -485,7 +490,8 @@ def stage_attack(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, s
 
 
 # ------------------------------------------------------------------------------------------------ sweep
-SWEEP_KINDS = ("all", "colour", "scale", "shape")
+SWEEP_KINDS = ("all", *VARIANT_KINDS)
+"""``sweep.kinds``: ``all`` varies the kinds of ``scenes.attacker_variant_kinds`` together."""
 
 
 def stage_sweep(config: StudyConfig, paths: StudyPaths, render_key: str, maps: dict[tuple[str, str], Path],
@@ -780,6 +786,7 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
             return run_study(config, out, force, server_url, progress, workers, pool)
 
     forced = _check_force(force)
+    check_config(config, config.name)  # a config built in Python fails here, not after the renders
     paths = StudyPaths(Path(out))
     paths.root.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}

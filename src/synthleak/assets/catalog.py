@@ -30,7 +30,8 @@ def objects_rows(library: dict[str, ObjectModel]) -> list[dict[str, Any]]:
                 },
                 "scale_range": list(m.scale_range),
                 "colour_range": list(m.colour_range),
-                "textures": {k: v["kind"] for k, v in sorted(m.textures.items())},
+                # procedural textures name their kind; an imported model's parts carry image files
+                "textures": {k: v.get("kind", "imported") for k, v in sorted(m.textures.items())},
                 "source": m.source,
             }
         )

@@ -46,6 +46,7 @@ from synthleak.assets.builders.base import MaterialSlot
 from synthleak.assets.materials import get_sku
 from synthleak.assets.mesh import ObjectMesh
 from synthleak.assets.textures import TEXTURE_KINDS, make_texture
+from synthleak.errors import UnknownNameError
 from synthleak.paths import object_library_dir
 from synthleak.seeding import make_rng
 
@@ -183,7 +184,7 @@ def build_model(
     p.update(model.default_params())
     for k, v in (params or {}).items():
         if k not in model.params:
-            raise KeyError(
+            raise UnknownNameError(
                 f"model {model.model_id!r} has no shape parameter {k!r}; it has {sorted(model.params)}"
             )
         if v is not None:
@@ -401,7 +402,7 @@ def get_model(model_id: str, library: dict[str, ObjectModel] | None = None) -> O
     lib = library if library is not None else _default_library(str(object_library_dir()))
     if model_id not in lib:
         close = difflib.get_close_matches(model_id, lib, n=5, cutoff=0.4)
-        raise KeyError(
+        raise UnknownNameError(
             f"unknown model {model_id!r}; close: {close or 'none'} ({len(lib)} models in the library)"
         )
     return lib[model_id]

@@ -27,11 +27,9 @@ import numpy as np
 from synthleak.assets.builders import SupportSurface
 from synthleak.assets.library import ObjectModel, build_model, get_model
 from synthleak.assets.materials import model_skus, with_materials
-from synthleak.assets.mesh import ObjectMesh, TexturedPart
+from synthleak.assets.mesh import VARIANT_KINDS, ObjectMesh, TexturedPart
 from synthleak.assets.textures import hsv_shift
 from synthleak.seeding import make_rng
-
-VARIANT_KINDS = ("colour", "scale", "shape")
 
 __all__ = ["VARIANT_KINDS", "SupportSurface", "Variant", "variant", "variant_from_record"]
 

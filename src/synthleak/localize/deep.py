@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from synthleak.errors import MissingDependencyError, SynthleakError
 from synthleak.localize.features import Features
 
 DISK_FILES = ("depth-save.pth",)
@@ -24,11 +25,7 @@ DISK_URL = "https://raw.githubusercontent.com/cvlab-epfl/disk/master/depth-save.
 LIGHTGLUE_URL = "https://github.com/cvg/LightGlue/releases/download/v0.1_arxiv/disk_lightglue.pth"
 
 
-class MissingDependencyError(ImportError):
-    """torch or kornia is not installed."""
-
-
-class WeightsNotFoundError(FileNotFoundError):
+class WeightsNotFoundError(SynthleakError, FileNotFoundError):
     """Network weights are not on disk; the message lists the paths tried and how to get the files."""
 
 

@@ -13,6 +13,8 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from synthleak.errors import SynthleakError
+
 
 @dataclass
 class Features:
@@ -36,7 +38,7 @@ class Features:
                         None if self.scores is None else self.scores[index], self.image_size)
 
 
-class MissingFeatureError(RuntimeError):
+class MissingFeatureError(SynthleakError, RuntimeError):
     """The installed libraries do not provide a tier's detector."""
 
 

@@ -14,6 +14,7 @@ import pycolmap
 from PIL import Image
 
 from synthleak.config import LocalizeConfig
+from synthleak.errors import SynthleakError
 from synthleak.localize.defense import DefenseDecision, DefensePolicy
 from synthleak.localize.features import Features
 from synthleak.localize.retrieval import RETRIEVAL_METHODS, BowIndex
@@ -38,7 +39,7 @@ class LocalizationResult:
     """Seconds: ``features``, ``matching`` (retrieval + matching), ``pnp``, ``total``."""
 
 
-class InvalidImageError(ValueError):
+class InvalidImageError(SynthleakError, ValueError):
     """Query image bytes/array that cannot be used."""
 
 

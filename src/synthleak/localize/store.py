@@ -17,13 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
+from synthleak.errors import SynthleakError
 from synthleak.localize.features import Features
 from synthleak.render.base import Camera
 
 FORMAT_VERSION = 1
 
 
-class MapError(ValueError):
+class MapError(SynthleakError, ValueError):
     """A map folder that cannot be used; names the file and the field."""
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ import cv2
 import numpy as np
 
 from synthleak.atomic_io import TEMP_PREFIX, atomic_write_bytes, atomic_write_text
+from synthleak.errors import SynthleakError
 from synthleak.geometry.poses import (
     check_pose,
     invert,
@@ -29,7 +31,7 @@ BOP_DEPTH_SCALE = 0.25
 """BOP 16-bit depth PNGs hold depth_mm / BOP_DEPTH_SCALE: 0.25 mm steps up to 16.4 m (0.1 would stop at 6.5 m)."""
 
 
-class DatasetError(ValueError):
+class DatasetError(SynthleakError, ValueError):
     """A malformed dataset file; the message names the file and the field."""
 
 
@@ -134,6 +136,35 @@ def write_frame(seq_dir: Path, frame: str | int, data: Frame) -> None:
     atomic_write_bytes(paths["depth"], encode_npy(data.depth.astype(np.float32)))
     atomic_write_bytes(paths["instance"], encode_png(data.instance.astype(np.uint16)))
     atomic_write_bytes(paths["rgb"], encode_png(data.rgb))
+
+
+def write_bop_rgb(seq_dir: Path) -> int:
+    """``bop/rgb/<frame>.png`` for every image of ``images/``: the scene folder ``bop/`` then holds its RGB frames
+    where BOP tools (bop_toolkit) look for them. Each is a hard link to the image where the file system allows
+    one (no extra space), else a copy (the same bytes); both are made under a temporary name and renamed into
+    place. An existing link to the image (or, where links fail, a copy with its bytes) is kept. Returns how many
+    were made."""
+    seq_dir = Path(seq_dir)
+    target_dir = seq_dir / "bop" / "rgb"
+    made = 0
+    for image in sorted((seq_dir / "images").glob("*.png")):
+        target = target_dir / image.name
+        if target.is_file() and os.path.samefile(image, target):
+            continue
+        target_dir.mkdir(parents=True, exist_ok=True)
+        tmp = target_dir / f"{TEMP_PREFIX}{image.name}.{os.getpid()}"
+        tmp.unlink(missing_ok=True)
+        try:
+            os.link(image, tmp)
+        except OSError:  # no hard links here (another file system, FAT, some network mounts): a copy
+            data = image.read_bytes()
+            if target.is_file() and target.read_bytes() == data:
+                continue
+            atomic_write_bytes(target, data)
+        else:
+            os.replace(tmp, target)
+        made += 1
+    return made
 
 
 # ----------------------------------------------------------------------------------------------- metadata

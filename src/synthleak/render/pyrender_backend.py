@@ -36,6 +36,7 @@ import numpy as np
 
 from synthleak.config import RenderConfig
 from synthleak.render.base import Camera, Frame, RenderMesh, RenderScene
+from synthleak.render.lighting import emissive_lights
 from synthleak.scene.spec import Light
 
 INSTALL_HINT = (
@@ -288,7 +289,7 @@ class PyrenderRenderer:
             node = pscene.add(pmesh)
             order.append(node)
             seg_map[node] = encode_ids(np.array(mesh.instance_id))
-        for light in scene.lights:
+        for light in (*scene.lights, *emissive_lights(scene)):  # emissive meshes light through stand-ins
             plight, pose = _light_node(pr, light)
             pscene.add(plight, pose=pose, name=light.name)
         self._cam_node = pscene.add(pr.IntrinsicsCamera(1.0, 1.0, 0.5, 0.5, znear=ZNEAR, zfar=ZFAR))

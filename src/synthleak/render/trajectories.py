@@ -8,6 +8,10 @@ from synthleak.geometry.poses import look_at, make_pose
 from synthleak.render.base import InstanceInfo, RenderScene
 
 EYE_HEIGHT = (1.3, 1.8)
+WALKTHROUGHS = ("loop", "furniture")
+"""``render.walkthrough`` values: this module's loop, or :mod:`synthleak.render.furniture_views`' tour."""
+OPEN_HEIGHT = 2.5
+"""Height of the space above the floor of a stage without walls or ceiling (walk-throughs stay 0.3 m below)."""
 
 
 def _roll(cam_from_world: np.ndarray, roll_rad: float) -> np.ndarray:
@@ -18,14 +22,17 @@ def _roll(cam_from_world: np.ndarray, roll_rad: float) -> np.ndarray:
 def room_bounds(scene: RenderScene) -> np.ndarray:
     """(2, 3) world bounds of the room's interior: x, y from its floor (the shell piece named ``floor``, else
     the lowest shell piece), z from the floor's top to the lowest shell piece above it (the ceiling).
-    Pieces outside the room (a backdrop behind a window) do not count. Without a shell: all meshes."""
+    Pieces outside the room (a backdrop behind a window) do not count. Without a shell (stages of other tools):
+    the bounds of all meshes, at least :data:`OPEN_HEIGHT` high (an open stage: a floor and furniture)."""
     shell_ids = {i for i, info in scene.instances.items() if info.role == "shell"}
     shell = [m for m in scene.meshes if m.instance_id in shell_ids]
     if not shell:
         if not scene.meshes:
             raise ValueError(f"{scene.source or 'scene'}: no meshes to bound the room")
         verts = np.concatenate([np.asarray(m.vertices, dtype=np.float64).reshape(-1, 3) for m in scene.meshes])
-        return np.stack([verts.min(axis=0), verts.max(axis=0)])
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
+        hi[2] = max(hi[2], lo[2] + OPEN_HEIGHT)
+        return np.stack([lo, hi])
     verts = {id(m): np.asarray(m.vertices, dtype=np.float64).reshape(-1, 3) for m in shell}
     names = {m.instance_id: scene.instances[m.instance_id].name.lower() for m in shell}
     floors = [m for m in shell if "floor" in names[m.instance_id]]

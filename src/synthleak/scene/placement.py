@@ -25,6 +25,7 @@ from shapely.affinity import affine_transform
 from shapely.geometry import Polygon, box
 
 from synthleak.assets.mesh import ObjectMesh
+from synthleak.errors import SynthleakError
 from synthleak.geometry.poses import make_pose, transform_points
 from synthleak.scene.room import RoomShell, yaw_matrix
 
@@ -65,7 +66,7 @@ HOME_ORDER = ("wall", "table", "in_front", "facing_room", "at_table", "beside")
 """Home layout placement order of the rules (hosts before the items placed relative to them)."""
 
 
-class PlacementError(RuntimeError):
+class PlacementError(SynthleakError, RuntimeError):
     """An object that does not fit in its room under the placement rules."""
 
 
