@@ -238,3 +238,78 @@ def test_home_layout_backs_furniture_against_walls_and_faces_chairs_to_tables():
                     assert front[:2] @ to_table[:2] > 0, o.name
                     at_table += 1
     assert checked >= 6 and at_table >= 1
+
+
+# ------------------------------------------------------------------------------------------ end to end
+
+
+@pytest.fixture(scope="module")
+def hard_study(tmp_path_factory):
+    """The ci-tiny-hard study (shared SKUs everywhere, distractors, clutter, home layout, furniture
+    walk-through, close-ups): real renders, real SIFT maps and localizations."""
+    from synthleak.study import run_study
+
+    out = tmp_path_factory.mktemp("ci-tiny-hard")
+    config = load_config("ci-tiny-hard")
+    run_study(config, out, progress=False, workers=1)
+    return config, out
+
+
+@pytest.mark.slow
+def test_an_absent_object_localizes_on_an_instance_sharing_its_sku(hard_study):
+    from synthleak.evaluate.lookalikes import lookalike_ids, top_instance
+    from synthleak.study import load_index, read_query_log
+
+    _, out = hard_study
+    index = load_index(out / "dataset")
+    rooms = {r["name"]: r for r in index["rooms"]}
+    hits = []
+    for log in sorted((out / "queries").glob("*/*/queries.jsonl")):
+        for q in read_query_log(log):
+            if q["genuine"] or not q["success"]:
+                continue
+            obj = next(a for a in index["attacker_objects"] if a["id"] == q["attacker_object"])
+            if q["room"] in obj["present_in"]:
+                continue
+            top = top_instance(q["inlier_instance_counts"])
+            if lookalike_ids(obj, rooms[q["room"]]).get(top) == "shares_sku":
+                hits.append((q["room"], obj["id"], top))
+    assert hits, "no absent object localized on an instance sharing its SKU"
+    rows = json.loads((out / "results" / "results.json").read_text())
+    absent = [r for r in rows if not r["present_gt"]]
+    assert {r["absent_kind"] for r in absent} <= {"shares_sku", "same_category", "unrelated"}
+    assert any(r["n_lookalike_top"] > 0 and r["absent_kind"] == "shares_sku" for r in absent)
+
+
+@pytest.mark.slow
+def test_hard_world_report_coverage_masks_and_bop(hard_study):
+    """The walk-through sees furniture (coverage from the GT masks), props and distractors are in the masks,
+    the BOP GT and the plan view, close-ups are held-out queries, and the report has the new sections."""
+    from synthleak.evaluate.coverage import sequence_coverage
+    from synthleak.inspect.plan_view import footprints
+    from synthleak.render.dataset import load_sequence
+    from synthleak.render.pipeline import load_stage
+    from synthleak.study import load_index
+
+    _, out = hard_study
+    index = load_index(out / "dataset")
+    for room in index["rooms"]:
+        seq = load_sequence(out / "dataset" / "scenes" / room["name"])
+        coverage = sequence_coverage(seq)
+        assert coverage["share_below_10pct"] <= 0.10, (room["name"], coverage)
+        assert coverage["closeups"] >= 1 and set(seq.split["closeup"]) <= set(seq.split["query"])
+        added = {o["instance_id"] for o in room["distractors"] + room["props"]}
+        assert added and any(i >= 1000 for i in added)
+        seen = set()
+        for frame in seq.frames:
+            seen |= set(np.unique(seq.instance(frame)).tolist())
+        assert len(added & seen) >= len(added) // 2, (room["name"], sorted(added - seen))
+        gt = json.loads((seq.root / "bop" / "scene_gt.json").read_text())
+        assert added <= {e["obj_id"] for e in gt["0"]}
+        assert added <= set(footprints(load_stage(out / "dataset" / "stages" / room["stage"])))
+    report = (out / "report.md").read_text()
+    for section in ("## The world", "## Where presence is lost", "## Where false presence comes from",
+                    "## Presence by kind of absent pair", "genuine_closeup_kept"):
+        assert section in report
+    world = json.loads((out / "results" / "world.json").read_text())
+    assert world["knobs"]["material_sharing"] == 1.0 and len(world["rooms"]) == len(index["rooms"])
