@@ -7,7 +7,7 @@
 
 Starts ``synthleak serve MAP [--workers N]`` as a subprocess for each worker count; clients are threads that
 each POST pre-encoded query PNGs (the held-out frames of the room) in turn. Then uploads oversized images
-(a 6000x6000 black PNG, a 6000x4500 and a 5000x4000 image with intrinsics) one at a time, sampling the
+(a 6000x6000 black PNG, a 6000x4500 and a 5000x4000 upscaled query; all with intrinsics) one at a time, sampling the
 resident memory of the server and its worker processes every 10 ms and polling ``/health``. Every answer to
 the same query must be the same bytes, whatever the worker count or the number of clients: the script says
 whether they were.
@@ -136,15 +136,15 @@ def png(image: np.ndarray) -> bytes:
 
 def oversized(camera: Camera, query: np.ndarray) -> list[tuple[str, bytes, dict]]:
     """(label, body, query parameters) of the oversized uploads."""
-    black = png(np.zeros((6000, 6000), np.uint8))
-    rows = []
+    def intrinsics(w: int, h: int) -> dict:
+        sx, sy = w / camera.width, h / camera.height
+        return {"fx": camera.fx * sx, "fy": camera.fy * sy, "cx": camera.cx * sx, "cy": camera.cy * sy}
+
+    rows = [("6000x6000 black", png(np.zeros((6000, 6000), np.uint8)), intrinsics(6000, 6000))]
     for w, h in ((6000, 4500), (5000, 4000)):
-        s = w / camera.width
         big = np.asarray(Image.fromarray(query).resize((w, h), Image.Resampling.BILINEAR))
-        params = {"fx": camera.fx * s, "fy": camera.fy * h / camera.height, "cx": camera.cx * s,
-                  "cy": camera.cy * h / camera.height}
-        rows.append((f"{w}x{h} query with intrinsics", png(big), params))
-    return [("6000x6000 black, no intrinsics", black, {}), *rows]
+        rows.append((f"{w}x{h} query", png(big), intrinsics(w, h)))
+    return rows
 
 
 def upload_under_watch(server: Server, body: bytes, params: dict) -> dict:
@@ -157,12 +157,12 @@ def upload_under_watch(server: Server, body: bytes, params: dict) -> dict:
             time.sleep(0.01)
 
     def health() -> None:
-        with httpx.Client(timeout=300) as http:
-            while not stop.is_set():
-                t0 = time.perf_counter()
-                http.get(f"{server.url}/health")
-                worst_health[0] = max(worst_health[0], time.perf_counter() - t0)
-                time.sleep(0.05)
+        while not stop.is_set():
+            t0 = time.perf_counter()
+            with contextlib.suppress(httpx.HTTPError):  # a new connection each time; an error counts as its wait
+                httpx.get(f"{server.url}/health", timeout=300)
+            worst_health[0] = max(worst_health[0], time.perf_counter() - t0)
+            time.sleep(0.05)
 
     threads = [threading.Thread(target=sample), threading.Thread(target=health)]
     for t in threads:
@@ -191,7 +191,8 @@ def main() -> None:
     parser.add_argument("--width", type=int, default=320)
     parser.add_argument("--height", type=int, default=240)
     parser.add_argument("--server-src", type=Path, help="PYTHONPATH of the server (another checkout's src)")
-    parser.add_argument("--no-oversized", action="store_true")
+    parser.add_argument("--no-oversized", action="store_true", help="skip the oversized uploads")
+    parser.add_argument("--no-load", action="store_true", help="skip the client load (oversized uploads only)")
     args = parser.parse_args()
     print(f"{os.cpu_count()} cores; server from {args.server_src or 'this checkout'}")
     with tempfile.TemporaryDirectory() as tmp:
@@ -211,7 +212,7 @@ def main() -> None:
             try:
                 label = f"workers={workers}" if workers else "default workers"
                 idle = _rss_mib(server.proc.pid)
-                for clients in args.clients:
+                for clients in [] if args.no_load else args.clients:
                     rps, p95, answers = load(server.url, bodies, clients, args.requests)
                     for k, v in answers.items():
                         all_answers.setdefault(k, set()).update(v)

@@ -282,3 +282,18 @@ def test_pool_reports_map_errors_at_start(tmp_path):
 
     with pytest.raises(MapError, match="map.json"):
         LocalizerPool(tmp_path / "nowhere", 2)
+
+
+def test_a_killed_worker_costs_one_503_then_the_pool_is_restarted(map_dir, localizer, queries):
+    import multiprocessing
+    import os
+    import signal
+
+    expected = TestClient(create_app(localizer)).post("/localize", content=queries[0]).content
+    with LocalizerPool(map_dir, 1, CONFIG) as pool, _Server(create_app(pool)) as server:
+        (worker,) = multiprocessing.active_children()
+        os.kill(worker.pid, signal.SIGKILL)  # as the kernel's OOM killer would
+        worker.join(10)
+        first = httpx.post(f"{server.url}/localize", content=queries[0], timeout=120)
+        assert first.status_code == 503 and "restarted" in first.json()["detail"]
+        assert httpx.post(f"{server.url}/localize", content=queries[0], timeout=120).content == expected

@@ -81,7 +81,7 @@ class LocalizerPool:
         self.max_query_pixels = int(max_query_pixels)
         self._initargs = (str(map_dir), config, defense, str(weights_dir) if weights_dir else None,
                           threads_per_worker(self.workers))
-        self._lock = threading.Lock()
+        self._restart_lock = asyncio.Lock()
         self._pool = self._start()
 
     def _start(self) -> ProcessPoolExecutor:
@@ -108,11 +108,12 @@ class LocalizerPool:
             result = await asyncio.get_running_loop().run_in_executor(
                 pool, _localize, data, camera, self.max_query_pixels)
         except BrokenProcessPool as exc:
-            with self._lock:
-                if self._pool is pool:  # the first request to notice restarts it
+            async with self._restart_lock:
+                if self._pool is pool:  # the first request to notice restarts it, off the event loop
                     pool.shutdown(wait=False, cancel_futures=True)
-                    self._pool = self._start()
-            raise WorkerCrashedError("a localizer process died during this query; the pool was restarted") from exc
+                    self._pool = await asyncio.to_thread(self._start)
+            raise WorkerCrashedError("a localizer process died (killed, or out of memory); the pool was "
+                                     "restarted") from exc
         if result.defense is not None and self.decision_log is not None:
             log_decision(self.decision_log, self.defense, result.defense, result.num_inliers)
         return result
