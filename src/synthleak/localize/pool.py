@@ -18,7 +18,7 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from synthleak.config import LocalizeConfig
-from synthleak.executors import START_METHOD, limit_worker_threads, threads_per_worker
+from synthleak.executors import START_METHOD, limit_worker_threads
 from synthleak.localize.defense import DefensePolicy
 from synthleak.localize.images import MAX_QUERY_PIXELS
 from synthleak.localize.localizer import LocalizationResult, Localizer, log_decision
@@ -79,8 +79,9 @@ class LocalizerPool:
         self.defense = defense or DefensePolicy()
         self.decision_log = decision_log
         self.max_query_pixels = int(max_query_pixels)
-        self._initargs = (str(map_dir), config, defense, str(weights_dir) if weights_dir else None,
-                          threads_per_worker(self.workers))
+        # One BLAS thread per process: parallelism comes from the workers (2 threads made a query 35% more
+        # CPU and slower on 2 busy cores), and every worker count computes with the same thread count.
+        self._initargs = (str(map_dir), config, defense, str(weights_dir) if weights_dir else None, 1)
         self._restart_lock = asyncio.Lock()
         self._pool = self._start()
 
