@@ -420,6 +420,36 @@ def test_opencv_tiers_localize(tiny_box_scene, tmp_path, tier):
             assert dist < 0.1 and angle < 2.0
 
 
+def assert_blank_images_not_localized(map_dir: Path, cfg: LocalizeConfig) -> None:
+    """Uniform black, grey and white images: no features (descriptors as wide as the map's) and not localized."""
+    loc = Localizer.load(map_dir, cfg)
+    width = next(f.descriptors.shape[1] for f in loc.data.features if len(f))
+    for level in (0, 128, 255):
+        blank = np.full((loc.camera.height, loc.camera.width, 3), level, np.uint8)
+        features = loc.extractor(blank)
+        assert len(features) == 0 and features.descriptors.shape == (0, width), (level, features.descriptors.shape)
+        result = loc.localize(png_bytes(blank))
+        assert not result.success and result.cam_from_world is None
+
+
+@pytest.mark.parametrize("tier", ["sift", "orb", "akaze"])
+def test_blank_images_are_not_localized_by_the_classic_tiers(tiny_box_scene, tmp_path, tier):
+    import cv2
+
+    if tier == "akaze" and not hasattr(cv2, "AKAZE_create"):
+        pytest.skip("OpenCV without AKAZE")
+    cfg = LocalizeConfig(max_keypoints=1024, pairs_per_image=3)
+    assert_blank_images_not_localized(build_map(tiny_box_scene, tier, tmp_path / tier, cfg, progress=False), cfg)
+
+
+def test_blank_images_are_not_localized_by_kornia_sift(small_box_scene, tmp_path):
+    pytest.importorskip("torch", reason="torch not installed: pip install torch==2.13.0 kornia")
+    pytest.importorskip("kornia", reason="kornia not installed: pip install torch==2.13.0 kornia")
+    cfg = LocalizeConfig(max_keypoints=256, pairs_per_image=3)
+    map_dir = build_map(small_box_scene, "kornia-sift", tmp_path / "ksift", cfg, progress=False)
+    assert_blank_images_not_localized(map_dir, cfg)
+
+
 def test_unknown_tier_is_named():
     with pytest.raises(ValueError, match="unknown localization tier 'surf'.*sift"):
         get_tier("surf")
@@ -467,3 +497,6 @@ def test_disk_lightglue_runs_end_to_end_with_local_weights(small_box_scene, tmp_
                        pairs_per_image=1)
     assert len(results) == 2
     assert all(r.timings["features"] > 0 and (r.success or r.cam_from_world is None) for r, _ in results)
+    loc = Localizer.load(tmp_path / "disk", LocalizeConfig(max_keypoints=64, pairs_per_image=1))
+    for level in (0, 128, 255):  # DISK may find keypoints on a blank image; they must not localize or fail
+        assert not loc.localize(np.full((120, 160, 3), level, np.uint8)).success

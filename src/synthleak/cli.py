@@ -104,7 +104,8 @@ def _cmd_serve(args: argparse.Namespace) -> None:
     from synthleak.localize.server import serve
 
     serve(Path(args.map), host=args.host, port=args.port, config=_study_config(args.config).localize,
-          defense=_defense(args), decision_log=Path(args.decision_log) if args.decision_log else None)
+          defense=_defense(args), decision_log=Path(args.decision_log) if args.decision_log else None,
+          workers=args.workers)
 
 
 def _cmd_localize(args: argparse.Namespace) -> None:
@@ -195,6 +196,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", help="study config whose [localize] and [defense] sections to use")
     p.add_argument("--defense", action="store_true", help="turn the query defense on (X, k from the config)")
     p.add_argument("--decision-log", help="JSONL file logging every defense decision with its counts")
+    p.add_argument("--workers", type=int, default=None,
+                   help="localizer processes answering queries in parallel (default: one per core, at most 8)")
 
     p = command("localize", _cmd_localize, "localize images against a map (prints one JSON line each)")
     p.add_argument("map")

@@ -86,8 +86,10 @@ class KorniaSiftExtractor:
         torch = _torch()
         with torch.inference_mode():
             lafs, _, descs = self._model(_image_tensor(rgb, grey=True))
-        kp = lafs[0, :, :, 2].double().numpy() + 0.5
-        return Features(kp, descs[0].float().numpy())
+        # kornia pads to num_features with all-zero frames at (0, 0) when it finds fewer (a blank image: none)
+        found = lafs[0, :, :, :2].abs().flatten(1).sum(1).numpy() > 0
+        kp = lafs[0, :, :, 2].double().numpy()[found] + 0.5
+        return Features(kp, descs[0].float().numpy()[found])
 
 
 class KorniaDescriptorMatcher:
