@@ -12,7 +12,6 @@ import numpy as np
 import pycolmap
 
 from synthleak.config import LocalizeConfig
-from synthleak.errors import SynthleakError
 from synthleak.localize.defense import DefenseDecision, DefensePolicy
 from synthleak.localize.features import Features
 from synthleak.localize.images import MAX_QUERY_PIXELS, InvalidImageError, decode_image, fit_to_pixels
