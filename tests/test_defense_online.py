@@ -34,6 +34,10 @@ def _defended_config():
         config.defense, enabled=True, min_fraction=X, min_instances=K))
 
 
+def _log_paths(study: Path) -> dict[tuple[str, str], Path]:
+    return {("sift", log.parent.name): log for log in sorted((study / "queries" / "sift").glob("*/queries.jsonl"))}
+
+
 def _logs(study: Path) -> dict[str, list[dict]]:
     return {room: read_query_log(log) for (_, room), log in _log_paths(study).items()}
 
@@ -74,10 +78,6 @@ def test_in_process_decisions_equal_the_offline_sweep(ci_tiny_study, defended_st
     grid = {"min_fractions": [0.05, X, 0.3], "min_instances": [2, K]}
     assert (defense_tradeoff(defense_queries(_log_paths(defended_study)), **grid)
             == defense_tradeoff(defense_queries(_log_paths(ci_tiny_study)), **grid))
-
-
-def _log_paths(study: Path) -> dict[tuple[str, str], Path]:
-    return {("sift", log.parent.name): log for log in sorted((study / "queries" / "sift").glob("*/queries.jsonl"))}
 
 
 def test_the_undefended_attack_is_rebuilt_from_the_defended_logs(ci_tiny_study, defended_study):

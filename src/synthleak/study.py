@@ -649,53 +649,16 @@ def defense_queries(logs: dict[tuple[str, str], Path]) -> list[dict[str, Any]]:
             for _, log in sorted(logs.items()) for q in read_query_log(log)]
 
 
-def _presence_rules_section(config: StudyConfig, rows: list[dict[str, Any]]) -> list[str]:
-    """Report lines: the ε rule against the attacker-side classifier on the same held-out rooms."""
-    from synthleak.evaluate.tables import markdown_table, presence_rule_comparison
-
-    table = presence_rule_comparison(rows)
-    if not table:
-        return []
-    return ["## Presence: the paper's ε rule against a classifier (held-out rooms)\n",
-            "Both decide each room from the other rooms only (leave-one-scene-out): the ε rule with per-object "
-            "ε⁺/ε⁻ medians, the classifier (logistic regression, `synthleak.attack.presence_classifier`) with "
-            "attacker-side features: ε at each threshold pair, share of queries localized, second-best "
-            "hypothesis, inlier residual spread, placement agreement across threshold pairs. `fallbacks`: rooms "
-            f"whose training rooms hold one class (ε rule kept). The `decision` column uses "
-            f"`{config.attack.presence}` (`[attack] presence`).\n",
-            markdown_table(table, list(table[0]))]
-
-
 def _defense_online_section(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]],
                             logs: dict[tuple[str, str], Path]) -> list[str]:
-    """Report lines for the online defense: the attack with and without it and the genuine queries it refuses,
-    on the same queries (writes ``results/results_no_defense.{csv,json}``)."""
+    """Report lines for the defense online: the attack with and without it on the same queries."""
     if not config.defense.enabled:
         return []
-    from synthleak.evaluate import defense_online as online
-    from synthleak.evaluate.tables import markdown_table, write_results
+    from synthleak.evaluate.defense_online import holds_decisions, report_section
 
-    d = config.defense
-    head = [f"## The defense online (X = {d.min_fraction:g}, k = {d.min_instances})\n"]
     records = [q for _, log in sorted(logs.items()) for q in read_query_log(log)]
-    if not online.holds_decisions(records):
-        return head + ["The server's decisions are not in the query logs (a remote server tells only success and "
-                       "pose): the comparison with and without the defense needs the in-process server.\n"]
-    without = attack_rows(config, paths, logs, undefended=True)
-    write_results(without, paths.results, stem="results_no_defense")
-    check = online.online_vs_offline(records, d.min_fraction, d.min_instances)
-    refused, compare = online.refused_shares(records), online.attack_with_and_without(
-        without, rows, config.attack.thresholds)
-    atomic_write_text(paths.results / "defense_online.json", json.dumps(
-        {"check": check, "refused": refused, "attack": compare}, indent=1, default=str))
-    return head + [
-        f"Every query went through the server's policy. Online decisions equal to the offline sweep's rule on the "
-        f"logged counts: {check['n_decisions'] - check['n_differ']}/{check['n_decisions']}. Among the queries "
-        "PnP localized, the share the defense refused:\n",
-        markdown_table(refused, list(refused[0]) if refused else ["tier"]),
-        "The attack on the same queries without and with the defense (presence P/R, attacker queries localized, "
-        "placement of the GT-present pairs):\n",
-        markdown_table(compare, list(compare[0]) if compare else ["tier"])]
+    without = attack_rows(config, paths, logs, undefended=True) if holds_decisions(records) else None
+    return report_section(config.defense, records, without, rows, config.attack.thresholds, paths.results)
 
 
 def _room_plots(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]]) -> list[Path]:
@@ -778,6 +741,7 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         markdown_table,
         placement_summary,
         presence_pr_per_room,
+        presence_rules_markdown,
         recall_funnel_markdown,
         table1_markdown,
         table2_markdown,
@@ -824,7 +788,7 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         "False positives among the absent pairs of each kind, and the precision counting only that kind of "
         "absent pair (all present pairs).\n",
         presence_by_absent_kind_markdown(rows),
-        *_presence_rules_section(config, rows),
+        presence_rules_markdown(rows, config.attack.presence),
         "## Placement against ground truth\n",
         placement_summary(rows, config.attack.thresholds),
         *_defense_online_section(config, paths, rows, logs),

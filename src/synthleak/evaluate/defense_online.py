@@ -13,8 +13,10 @@ with/without comparison needs the in-process server.
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from synthleak.evaluate.defense_sweep import passes_defense
@@ -98,14 +100,13 @@ def refused_shares(records: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]
 def attack_with_and_without(rows_without: Sequence[dict], rows_with: Sequence[dict],
                             thresholds: Sequence[tuple[float, float]]) -> list[dict[str, Any]]:
     """Per attack configuration: presence P/R, attacker queries localized and placement of the GT-present
-    pairs (median errors, success at ``thresholds``), without and with the defense."""
-    keys = ["tier", "aligner", "delta_r_deg", "delta_t_m"]
-    place = {name: {tuple(s[k] for k in keys): s for s in placement_stats(rows, thresholds=thresholds)}
+    pairs (median errors, success at ``thresholds``), ``<name> without`` and ``<name> with`` the defense."""
+    place = {name: {tuple(s[k] for k in _KEYS): s for s in placement_stats(rows, thresholds=thresholds)}
              for name, rows in (("without", rows_without), ("with", rows_with))}
-    grouped = {"without": group_rows(rows_without, keys), "with": group_rows(rows_with, keys)}
+    grouped = {"without": group_rows(rows_without, _KEYS), "with": group_rows(rows_with, _KEYS)}
     out = []
     for key in grouped["without"]:
-        row: dict[str, Any] = dict(zip(keys, key, strict=True))
+        row: dict[str, Any] = dict(zip(_KEYS, key, strict=True))
         for name in ("without", "with"):
             rows = grouped[name].get(key, [])
             pr = precision_recall(rows)
@@ -118,3 +119,59 @@ def attack_with_and_without(rows_without: Sequence[dict], rows_with: Sequence[di
                 row[f"succ {dr:g}°/{dt:g}m {name}"] = stat.get(f"success_{dr:g}deg_{dt:g}m", math.nan)
         out.append(row)
     return out
+
+
+_KEYS = ["tier", "aligner", "delta_r_deg", "delta_t_m"]
+
+
+def _pair(row: Mapping[str, Any], name: str, digits: int) -> str:
+    def cell(value: Any) -> str:
+        if isinstance(value, float):
+            return "–" if math.isnan(value) else "∞" if math.isinf(value) else f"{value:.{digits}f}"
+        return str(value)
+
+    return f"{cell(row[f'{name} without'])} → {cell(row[f'{name} with'])}"
+
+
+def comparison_markdown(compare: Sequence[Mapping[str, Any]], thresholds: Sequence[tuple[float, float]]) -> str:
+    """:func:`attack_with_and_without` as one markdown table, each cell ``without → with``."""
+    succ = [(f"succ {dr:g}°/{dt:g}m", 2) for dr, dt in thresholds]
+    columns = [("P", 2), ("R", 2), ("localized", 0), ("med rot °", 1), ("med trans m", 3), *succ]
+    lines = ["| tier | aligner | δr, δt | " + " | ".join(c for c, _ in columns) + " |",
+             "|" + "---|" * (3 + len(columns))]
+    for r in compare:
+        cells = [str(r["tier"]), str(r["aligner"]), f"{r['delta_r_deg']:g}°, {r['delta_t_m']:g}m"]
+        lines.append("| " + " | ".join(cells + [_pair(r, c, d) for c, d in columns]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def report_section(defense: Any, records: Sequence[Mapping[str, Any]], rows_without: Sequence[dict] | None,
+                   rows_with: Sequence[dict], thresholds: Sequence[tuple[float, float]], results: Path
+                   ) -> list[str]:
+    """Report lines for a study run with the defense online; writes ``results/defense_online.json`` and
+    ``results/results_no_defense.{csv,json}`` (the attack on the answers before the defense).
+    ``rows_without`` is None when the logs hold no decisions (a remote server)."""
+    from synthleak.atomic_io import atomic_write_text
+    from synthleak.evaluate.tables import markdown_table, write_results
+
+    head = [f"## The defense online (X = {defense.min_fraction:g}, k = {defense.min_instances})\n"]
+    if rows_without is None or not holds_decisions(records):
+        return head + ["The server's decisions are not in the query logs (a remote server tells only success "
+                       "and pose): the comparison with and without the defense needs the in-process server.\n"]
+    write_results(rows_without, results, stem="results_no_defense")
+    check = online_vs_offline(records, defense.min_fraction, defense.min_instances)
+    refused = refused_shares(records)
+    compare = attack_with_and_without(rows_without, rows_with, thresholds)
+    atomic_write_text(results / "defense_online.json", json.dumps(
+        {"check": check, "refused": refused, "attack": compare}, indent=1, default=str) + "\n")
+    agree = check["n_decisions"] - check["n_differ"]
+    return head + [
+        "The study's server applied the policy to every query; the attack without it runs on the same "
+        "queries (their answers before the defense, `results/results_no_defense.*`). Online decisions equal "
+        f"to the offline sweep's rule on the logged inlier counts: {agree}/{check['n_decisions']}.\n",
+        "Among the queries PnP localized, the share the defense refused (genuine walk-through frames, genuine "
+        "close-ups, attacker queries):\n",
+        markdown_table(refused, list(refused[0])),
+        "The attack without → with the defense (presence P/R, attacker queries localized, placement of all "
+        "GT-present pairs):\n",
+        comparison_markdown(compare, thresholds)]

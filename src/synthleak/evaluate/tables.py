@@ -392,3 +392,27 @@ def presence_rule_comparison(rows: Sequence[dict]) -> list[dict[str, Any]]:
                        else "classifier" if f_clf > f_eps else "eps")
         out.append(row)
     return out
+
+
+def presence_rules_markdown(rows: Sequence[dict], rule: str = "eps") -> str:
+    """Report section: :func:`presence_rule_comparison` as a table (empty without classifier decisions)."""
+    table = presence_rule_comparison(rows)
+    if not table:
+        return ""
+    head = ["tier", "aligner", "δr, δt", "P ε", "R ε", "F1 ε", "TP/FP ε", "P clf", "R clf", "F1 clf", "TP/FP clf",
+            "pairs", "fallbacks", "wins"]
+    lines = ["## Presence: the paper's ε rule against a classifier (held-out rooms)\n",
+             "Both decide each room from the other rooms only (leave-one-scene-out): the ε rule with per-object "
+             "ε⁺/ε⁻ medians, the classifier (logistic regression, `synthleak.attack.presence_classifier`) from "
+             "attacker-side features: ε at each threshold pair, share of queries localized, second-best hypothesis, "
+             "inlier residual spread, placement agreement across threshold pairs, the ε rule's margin. "
+             "`fallbacks`: rooms whose training rooms hold one class (ε rule kept). The `decision` column of the "
+             f"results uses `{rule}` (`[attack] presence`).\n",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in table:
+        cells = [r["tier"], r["aligner"], _thr_label(r["delta_r_deg"], r["delta_t_m"]),
+                 _fmt(r["P eps"]), _fmt(r["R eps"]), _fmt(r["F1 eps"]), r["TP/FP eps"],
+                 _fmt(r["P clf"]), _fmt(r["R clf"]), _fmt(r["F1 clf"]), r["TP/FP clf"],
+                 str(r["n_pairs"]), str(r["fallbacks"]), r["wins"]]
+        lines.append("| " + " | ".join(map(str, cells)) + " |")
+    return "\n".join(lines) + "\n"
