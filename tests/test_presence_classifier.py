@@ -106,6 +106,33 @@ def test_classifier_learns_from_other_rooms_and_falls_back_on_one_class():
     assert not out[1]["clf_fallback"] and not out[2]["clf_fallback"]
 
 
+def test_results_rows_carry_both_rules_and_the_config_picks_one():
+    from synthleak.evaluate.tables import apply_presence_decisions, presence_rule_comparison, presence_rules_markdown
+
+    rows = []
+    for r in range(3):
+        for o in range(4):
+            present = o == r  # obj_3 is present nowhere: the ε rule says present iff ε > ε⁻
+            rows.append(_row(f"room_{r}", f"obj_{o}", present, 0.5 if present else (0.1 if o == 3 else 0.0),
+                             6 if present else (1 if o == 3 else 0), model_id="m", category="c"))
+    by_eps, by_clf = apply_presence_decisions(rows), apply_presence_decisions(rows, "classifier")
+    assert [r["decision"] for r in by_eps] == [r["decision_eps"] for r in by_eps]
+    assert [r["decision"] for r in by_clf] == [r["decision_clf"] for r in by_clf]
+    assert [r["decision_clf"] for r in by_eps] == [r["decision_clf"] for r in by_clf]
+    (table,) = presence_rule_comparison(by_eps)
+    eps_fp = sum(r["decision_eps"] and not r["present_gt"] for r in by_eps)
+    clf_tp = sum(r["decision_clf"] and r["present_gt"] for r in by_eps)
+    assert table["TP/FP eps"] == f"3/{eps_fp}" and table["TP/FP clf"].startswith(f"{clf_tp}/")
+    assert table["n_pairs"] == 12 and table["wins"] in ("eps", "classifier", "tie")
+    assert "| sift | alg1 | 10°, 0.25m |" in presence_rules_markdown(by_eps)
+    with pytest.raises(ValueError, match="unknown rule"):
+        apply_presence_decisions(rows, "vote")
+    bare = [{k: v for k, v in r.items() if k not in TRIAL_FEATURES} for r in rows]
+    assert "decision_clf" not in apply_presence_decisions(bare)[0]
+    with pytest.raises(ValueError, match="no trial features"):
+        apply_presence_decisions(bare, "classifier")
+
+
 def test_features_ignore_every_ground_truth_column():
     rows = [_row("room_0", "obj_0", True, 0.5, 6, rot_err_deg=1.0, n_target_top=5, map_points_on_target=300),
             _row("room_1", "obj_0", False, 0.0, 0, rot_err_deg=None, n_target_top=None, absent_kind="unrelated")]
