@@ -29,7 +29,7 @@ from synthleak.localize.client import HttpLocalizer, LocalizationServiceError, e
 from synthleak.localize.defense import contributing_instances
 from synthleak.localize.localizer import InvalidImageError
 from synthleak.localize.sequence import read_sequence
-from synthleak.localize.server import create_app
+from synthleak.localize.server import create_app, response_from_result
 from synthleak.render.base import Camera
 
 CONFIG = LocalizeConfig(max_keypoints=2048, pairs_per_image=8)
@@ -251,6 +251,9 @@ def test_defense_rejects_single_object_view_and_accepts_wide_view(box_quads, box
     assert not result.success and result.cam_from_world is None  # ...and is rejected with it
     assert result.defense is not None and not result.defense.accepted
     assert len(result.defense.contributing) < 3
+    # the refused pose stays on the server side: logged for studies, never in the HTTP answer
+    assert np.array_equal(result.withheld_cam_from_world, undefended.cam_from_world)
+    assert response_from_result(result) == {"success": False}
 
     seq = read_sequence(box_scene)
     wide = defended.localize(seq.rgb(seq.query_frames[0]))

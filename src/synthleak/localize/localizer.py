@@ -35,6 +35,9 @@ class LocalizationResult:
     defense: DefenseDecision | None = None
     timings: dict[str, float] = field(default_factory=dict)
     """Seconds: ``features``, ``matching`` (retrieval + matching), ``pnp``, ``total``."""
+    withheld_cam_from_world: np.ndarray | None = None
+    """The pose PnP found for a query the enabled defense refused (server-side only: the HTTP answer is
+    ``{"success": false}``); studies log it to attack the same queries with and without the defense."""
 
 
 class Localizer:
@@ -157,13 +160,13 @@ class Localizer:
         pose[:3] = est["cam_from_world"].matrix()
         success = num_inliers >= self.min_inliers
         decision = self.defense.apply(counts_sorted) if success else None
+        withheld = None
         if decision is not None:
             self._log(decision, num_inliers)
             if self.defense.enabled and not decision.accepted:
-                success = False
-        return LocalizationResult(
-            success, pose if success else None, num_inliers, len(corr), counts_sorted, decision
-        )
+                success, withheld = False, pose
+        return LocalizationResult(success, pose if success else None, num_inliers, len(corr), counts_sorted,
+                                  decision, withheld_cam_from_world=withheld)
 
     def _log(self, decision: DefenseDecision, num_inliers: int) -> None:
         if self.decision_log is not None:
