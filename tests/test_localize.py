@@ -433,37 +433,3 @@ def test_kornia_sift_tier(small_box_scene, tmp_path):
     for result, gt in results:
         if result.success:
             assert pose_errors(result.cam_from_world, gt)[0] < 0.1
-
-
-def test_disk_lightglue_without_weights_fails_with_instructions(small_box_scene, tmp_path, monkeypatch):
-    pytest.importorskip("torch", reason="torch not installed: pip install torch==2.13.0 kornia")
-    pytest.importorskip("kornia", reason="kornia not installed: pip install torch==2.13.0 kornia")
-    import torch
-
-    from synthleak.localize.deep import WeightsNotFoundError
-
-    monkeypatch.delenv("SYNTHLEAK_WEIGHTS_DIR", raising=False)
-    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
-    with pytest.raises(WeightsNotFoundError) as info:
-        build_map(small_box_scene, "disk-lightglue", tmp_path / "map", progress=False,
-                  weights_dir=tmp_path / "w")
-    message = str(info.value)
-    assert "depth-save.pth" in message and str(tmp_path / "w") in message and "never downloaded" in message
-
-
-def test_disk_lightglue_runs_end_to_end_with_local_weights(small_box_scene, tmp_path, monkeypatch):
-    torch = pytest.importorskip("torch", reason="torch not installed: pip install torch==2.13.0 kornia")
-    pytest.importorskip("kornia", reason="kornia not installed: pip install torch==2.13.0 kornia")
-    from kornia.feature import DISK, LightGlue
-
-    torch.manual_seed(0)  # random weights: the pipeline must run; localizing is not expected
-    weights = tmp_path / "weights"
-    weights.mkdir()
-    torch.save({"extractor": DISK().state_dict()}, weights / "depth-save.pth")
-    lightglue = LightGlue(features=None, input_dim=128, weights=None)
-    torch.save(lightglue.state_dict(), weights / "disk_lightglue.pth")
-    monkeypatch.setenv("SYNTHLEAK_WEIGHTS_DIR", str(weights))
-    results = run_tier(small_box_scene, "disk-lightglue", tmp_path / "disk", max_keypoints=64,
-                       pairs_per_image=1)
-    assert len(results) == 2
-    assert all(r.timings["features"] > 0 and (r.success or r.cam_from_world is None) for r, _ in results)
