@@ -49,8 +49,11 @@ def inputs_hash(seq: SequenceFiles) -> str:
 
 
 def _map_settings(tier: str, config: LocalizeConfig, weights: dict) -> dict:
-    return {"tier": tier, "max_keypoints": config.max_keypoints, "pairs_per_image": config.pairs_per_image,
-            "format_version": FORMAT_VERSION, "weights_sha256": {k: v["sha256"] for k, v in weights.items()}}
+    settings = {"tier": tier, "max_keypoints": config.max_keypoints, "pairs_per_image": config.pairs_per_image,
+                "format_version": FORMAT_VERSION}
+    if weights:  # learned tiers: new weights, new map
+        settings["weights_sha256"] = {k: v["sha256"] for k, v in weights.items()}
+    return settings
 
 
 def build_map(
