@@ -247,9 +247,10 @@ LIGHTGLUE_FEATURES = {"disk": "disk-lightglue", "aliked": "aliked-lightglue", "x
 """kornia LightGlue configuration name -> weight file key."""
 
 
-def load_lightglue(features: str, weights_dir: Path | None = None):
+def load_lightglue(features: str, weights_dir: Path | None = None, filter_threshold: float | None = None):
     """kornia LightGlue configured for ``features`` (``disk``, ``aliked`` or ``xfeat``: LighterGlue), built with
-    ``features=None`` (no download) and loaded strictly from the weight file.
+    ``features=None`` (no download) and loaded strictly from the weight file; ``filter_threshold`` (the match
+    score a match must exceed) replaces the published 0.1 when given.
 
     Two documented exceptions to "every tensor of the file": ``disk_lightglue.pth`` (the v0.1_arxiv release)
     carries a leftover ``log_assignment.<i>.r`` per layer that LightGlue's code never reads (each must equal 1);
@@ -260,6 +261,8 @@ def load_lightglue(features: str, weights_dir: Path | None = None):
     from kornia.feature import LightGlue
 
     conf = {k: v for k, v in LightGlue.features[features].items() if k != "weights"}
+    if filter_threshold is not None:
+        conf["filter_threshold"] = float(filter_threshold)
     model = LightGlue(None, **conf)
     state, path = _load_file(LIGHTGLUE_FEATURES[features], weights_dir)
     unused: tuple[str, ...] = ()
@@ -385,8 +388,8 @@ class LightGlueMatcher:
     ``image_size``. Runs one pair at a time: kornia prunes points on CPU, which runs the pairs of a batch one by
     one anyway."""
 
-    def __init__(self, features: str, weights_dir: Path | None = None) -> None:
-        self._model = load_lightglue(features, weights_dir)
+    def __init__(self, features: str, weights_dir: Path | None = None, filter_threshold: float | None = None) -> None:
+        self._model = load_lightglue(features, weights_dir, filter_threshold)
 
     def __call__(self, a: Features, b: Features) -> np.ndarray:
         torch = _torch()
