@@ -102,16 +102,22 @@ def _build_map_task(task: tuple[Path, str, Path, Any]) -> Path:
 
 
 def _tier_weights(tier: str) -> list:
-    """The sha256 of a learned tier's weight files (none for the others: their keys stay as they were)."""
+    """A learned tier's definition (matching thresholds, budget) and the sha256 of its weight files; nothing for
+    the other tiers (their keys stay as they were)."""
+    from dataclasses import asdict
+
     from synthleak.localize.tiers import get_tier
 
-    record = get_tier(tier).weights_record()
-    return [{name: entry["sha256"] for name, entry in sorted(record.items())}] if record else []
+    spec = get_tier(tier)
+    record = spec.weights_record()
+    if not record:
+        return []
+    return [{"tier": asdict(spec), "weights": {name: entry["sha256"] for name, entry in sorted(record.items())}}]
 
 
 def _map_key(config: StudyConfig, render_key: str, tier: str) -> str:
-    """A map depends on the renders, its tier (and its weights) and the localize settings, not on the other
-    tiers."""
+    """A map depends on the renders, its tier (a learned tier's definition and weights) and the localize settings,
+    not on the other tiers."""
     localize = {k: v for k, v in _section(config, "localize").items() if k != "tiers"}
     return cache_key("map", render_key, tier, localize, *_tier_weights(tier))
 
