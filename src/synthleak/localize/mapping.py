@@ -11,6 +11,7 @@ import hashlib
 import json
 import shutil
 from collections import Counter
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -51,8 +52,9 @@ def inputs_hash(seq: SequenceFiles) -> str:
 def _map_settings(tier: str, config: LocalizeConfig, weights: dict) -> dict:
     settings = {"tier": tier, "max_keypoints": config.max_keypoints, "pairs_per_image": config.pairs_per_image,
                 "format_version": FORMAT_VERSION}
-    if weights:  # learned tiers: new weights, new map
+    if weights:  # learned tiers: new weights or a new definition (thresholds, budget), new map
         settings["weights_sha256"] = {k: v["sha256"] for k, v in weights.items()}
+        settings["tier_definition"] = json.loads(json.dumps(asdict(get_tier(tier))))  # as map.json reads back
     return settings
 
 
