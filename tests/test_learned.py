@@ -248,6 +248,10 @@ def test_a_learned_matcher_only_sees_the_top_k_retrieved_images(tmp_path):
     meta = json.loads((map_dir / "map.json").read_text())
     assert set(meta["weights"]) == {"xfeat.pt", "xfeat-lighterglue.pt"} and meta["keypoint_budget"] == 256
     assert meta["settings"]["weights_sha256"] == {k: v["sha256"] for k, v in meta["weights"].items()}
+    assert meta["settings"]["tier_definition"]["match_threshold"] == get_tier("xfeat-lighterglue").match_threshold
+    before = (map_dir / "map.json").stat().st_mtime_ns  # the same inputs and tier: the map is reused
+    assert build_map(scene, "xfeat-lighterglue", map_dir, config, progress=False) == map_dir
+    assert (map_dir / "map.json").stat().st_mtime_ns == before
     loc = Localizer.load(map_dir, config)
     calls = []
     matcher = loc.matcher
