@@ -102,10 +102,25 @@ def _build_map_task(task: tuple[Path, str, Path, Any]) -> Path:
     return build_map(sequence_dir, tier, out, localize, progress=False)
 
 
+def _tier_weights(tier: str) -> list:
+    """A learned tier's definition (matching thresholds, budget) and the sha256 of its weight files; nothing for
+    the other tiers (their keys stay as they were)."""
+    from dataclasses import asdict
+
+    from synthleak.localize.tiers import get_tier
+
+    spec = get_tier(tier)
+    record = spec.weights_record()
+    if not record:
+        return []
+    return [{"tier": asdict(spec), "weights": {name: entry["sha256"] for name, entry in sorted(record.items())}}]
+
+
 def _map_key(config: StudyConfig, render_key: str, tier: str) -> str:
-    """A map depends on the renders, its tier and the localize settings, not on the other tiers."""
+    """A map depends on the renders, its tier (a learned tier's definition and weights) and the localize settings,
+    not on the other tiers."""
     localize = {k: v for k, v in _section(config, "localize").items() if k != "tiers"}
-    return cache_key("map", render_key, tier, localize)
+    return cache_key("map", render_key, tier, localize, *_tier_weights(tier))
 
 
 def stage_maps(config: StudyConfig, paths: StudyPaths, render_key: str, force: set[str], progress: bool,
@@ -208,8 +223,8 @@ def load_features(path: Path) -> tuple[Any, tuple[int, int]]:
 
     with np.load(path) as z:
         scores = z["scores"] if "scores" in z.files else None
-        return (Features(z["keypoints"], z["descriptors"], bool(z["binary"]), scores),
-                tuple(int(v) for v in z["image_size"]))
+        size = tuple(int(v) for v in z["image_size"])
+        return Features(z["keypoints"], z["descriptors"], bool(z["binary"]), scores, size), size
 
 
 @dataclass
@@ -265,7 +280,7 @@ def stage_features(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str,
     tasks, marks = [], []
     for tier in sorted({tier for tier, _ in maps}):
         key = cache_key("features", done_key(paths.dataset), done_key(attacker_dataset), genuine, tier,
-                        config.localize.max_keypoints, config.attack.queries_per_object)
+                        config.localize.max_keypoints, config.attack.queries_per_object, *_tier_weights(tier))
         if "features" not in force and is_done(root / tier, key):
             continue
         plans = plans or _query_plans(config, paths, maps, attacker_dataset, genuine)

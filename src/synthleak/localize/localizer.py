@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -84,7 +84,7 @@ class Localizer:
         data = read_map(map_dir)
         loc = cls(data, get_tier(data.meta["tier"]), config or LocalizeConfig(), defense, weights_dir,
                   decision_log)
-        if loc.config.retrieval == "bow":
+        if loc.config.retrieval == "bow" or loc.tier.learned_matcher:  # a learned matcher: top_k images only
             with np.load(map_dir / "bow.npz") as arrays:
                 loc._bow = BowIndex.from_arrays(arrays)
         return loc
@@ -123,6 +123,8 @@ class Localizer:
         """Pose from the query's already extracted features (this map's tier and ``max_keypoints``): the same
         result as :meth:`localize` on the image they came from, without extracting them again."""
         camera = camera or self.camera
+        if query.image_size == (0, 0):
+            query = replace(query, image_size=(camera.width, camera.height))
         t1 = time.perf_counter()
         if not len(query):  # a blank image: nothing to match
             return LocalizationResult(False, timings={"features": 0.0, "matching": 0.0, "pnp": 0.0, "total": 0.0})
