@@ -53,7 +53,8 @@ def sfm_objects_markdown(models: Mapping[str, Any]) -> str:
             1, sum(int(r["registered"].split("/")[1]) for r in rows))
         errors = sorted(abs(r["scale_error_pct"]) for r in rows if math.isfinite(r["scale_error_pct"]))
         rows.append({"object": "all", "registered": f"{100 * frac:.1f} %", "misregistered":
-                     sum(r["misregistered"] for r in rows),
+                     sum(r["misregistered"] for r in rows), "object_points": math.nan, "median_rot_deg": math.nan,
+                     "median_centre_m": math.nan,
                      "scale_error_pct": errors[len(errors) // 2] if errors else math.nan,
                      "seconds": sum(r["seconds"] for r in rows if math.isfinite(r["seconds"])),
                      "problem": f"{sum(1 for r in rows if r['problem'])} objects with a problem"})
