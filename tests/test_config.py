@@ -80,6 +80,7 @@ BAD_VALUES = [  # (section, key, value, what the message must say)
     ("scenes", "distinct_objects", -1, r"scenes\.distinct_objects: must be >= 0"),
     ("scenes", "scene_variant_magnitude", -0.1, r"scenes\.scene_variant_magnitude: must be >= 0"),
     ("scenes", "attacker_variant_kinds", ["color"], r"scenes\.attacker_variant_kinds\[0\]: unknown name 'color'"),
+    ("attack", "presence", "vote", r"attack\.presence: unknown name 'vote'.*classifier"),
     ("defense", "min_fraction", 0.0, r"defense\.min_fraction: must be in \(0, 1\]"),
     ("defense", "min_fraction", 1.5, r"defense\.min_fraction: must be in \(0, 1\]"),
     ("defense", "min_instances", 0, r"defense\.min_instances: must be >= 1"),

@@ -129,7 +129,7 @@ def test_table1_hand_computed():
     assert "| r0 | 0.50 | 0.50 |" in md
     assert "| r1 | 0.67 | 1.00 |" in md
     assert "| all | 0.60 | 0.75 |" in md
-    assert "sift 10°, 0.25m P" in md
+    assert "tier `sift`, aligner `alg1`" in md and "| room | 10°, 0.25m P | 10°, 0.25m R |" in md
     assert random_guess_precision(HAND_ROWS) == 0.5
     per_obj = {r["object"]: r for r in presence_pr_per_object(HAND_ROWS)}
     # C: present in r0 only, never decided present -> P 0 (paper convention), R 0
@@ -262,9 +262,15 @@ def test_recall_funnel_counts_each_step() -> None:
         {"success": True, "inlier_instance_counts": {"3": 30, "7": 30}},  # tie: the lower id wins, not 7
         {"success": False, "inlier_instance_counts": {}},
     ]
-    assert _server_funnel(records, 7, {7: 120, 3: 50}) == {"map_points_on_target": 120, "n_target_top": 1}
-    assert _server_funnel(records, 7, None) == {"map_points_on_target": None, "n_target_top": 1}
-    assert _server_funnel(records, None, {7: 1}) == {"map_points_on_target": None, "n_target_top": None}
+    assert _server_funnel(records, 7, {7: 120, 3: 50}, {}) == {"map_points_on_target": 120, "n_target_top": 1,
+                                                              "n_lookalike_top": None}
+    assert _server_funnel(records, 7, None, {}) == {"map_points_on_target": None, "n_target_top": 1,
+                                                   "n_lookalike_top": None}
+    # an absent pair: the localized queries whose inliers lie mostly on a look-alike of the queried object
+    assert _server_funnel(records, None, {7: 1}, {3: "shares_sku"}) == {
+        "map_points_on_target": None, "n_target_top": None, "n_lookalike_top": 1}
+    assert _server_funnel(records, None, {7: 1}, {}) == {"map_points_on_target": None, "n_target_top": None,
+                                                        "n_lookalike_top": 0}
 
     def row(obj, present, points, localized, top, decision, aligner="alg1", magnitude=None):
         return {"tier": "sift", "room": "r0", "object": obj, "aligner": aligner, "delta_r_deg": 10.0,

@@ -342,3 +342,37 @@ def test_world_sweep_runs_a_study_per_value(tmp_path):
     assert all(o.get("skus") for r in shared[1]["rooms"] for o in r["objects"])
     assert (tmp_path / "plots" / "leakage_vs_world.png").stat().st_size > 10_000
     assert "## Leakage against the hard-world knobs" in report.read_text()
+
+
+def test_furniture_walkthrough_and_closeups_stand_in_free_space(tmp_path):
+    """Every camera of the tour and of the close-ups stands inside the room and outside every piece of floor
+    furniture, looks at something that is not the room shell, and the same seed gives the same poses."""
+    from synthleak.geometry.poses import camera_centre
+    from synthleak.render.furniture_views import _floor_footprints, closeup_views, furniture_walkthrough
+    from synthleak.render.raycast import RaycastGT
+    from synthleak.render.trajectories import _clearance, room_bounds
+    from synthleak.scene.usd_io import read_render_scene, write_stage
+    from synthleak.seeding import make_rng
+
+    config = _config(material_sharing=0.5, distractors=(2, 2), clutter=1.0, layout="home")
+    write_stage(_room_spec(config, 0), tmp_path / "room.usda")
+    scene = read_render_scene(tmp_path / "room.usda")
+    tour = furniture_walkthrough(scene, 30, make_rng(1, "tour"))
+    again = furniture_walkthrough(scene, 30, make_rng(1, "tour"))
+    assert len(tour) == 30 and all(np.array_equal(a, b) for a, b in zip(tour, again, strict=True))
+    close = closeup_views(scene, 6, make_rng(1, "close"))
+    assert len(close) == 6
+    lo, hi = room_bounds(scene)
+    footprints = _floor_footprints(scene)
+    tracer = RaycastGT(scene.meshes)
+    shell = [i for i, info in scene.instances.items() if info.role == "shell"]
+    camera = Camera.from_hfov(64, 48, 65.0)
+    for pose in [*tour, *close]:
+        centre = camera_centre(pose)
+        assert np.all(centre > lo + 0.2) and np.all(centre < hi - 0.2)
+        assert _clearance(centre[None, :2], footprints)[0] > 0.1
+        _, inst = tracer.render(camera, pose)
+        assert ((inst > 0) & ~np.isin(inst, shell)).mean() > 0.05
+    for pose in close:  # a close-up: the nearest furniture or prop surface in the centre of the view is near
+        depth, _ = tracer.render(camera, pose)
+        assert np.nanmin(np.where(np.isfinite(depth), depth, np.nan)[16:32, 20:44]) < 2.0

@@ -185,7 +185,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("map", _cmd_map, "build a localization map from a rendered scene sequence")
     p.add_argument("scene", help="a scene sequence folder, e.g. DATASET/scenes/room_000")
-    p.add_argument("--tier", default="sift", help="feature tier: sift, orb, akaze, kornia-sift, disk-lightglue")
+    p.add_argument("--tier", default="sift",
+                   help="feature tier: sift, orb, akaze, kornia-sift, xfeat, xfeat-lighterglue, disk-lightglue, "
+                   "aliked-lightglue (the last four: the [learned] extra, see README)")
     p.add_argument("--out", required=True, help="map folder")
     p.add_argument("--config", help="study config whose [localize] section to use")
 

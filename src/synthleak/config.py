@@ -106,6 +106,12 @@ def _aligners() -> Iterable[str]:
     return sorted(ALIGNERS)
 
 
+def _presence_rules() -> Iterable[str]:
+    from synthleak.evaluate.tables import PRESENCE_RULES
+
+    return PRESENCE_RULES
+
+
 def _renderers() -> Iterable[str]:
     from synthleak.render.registry import available_renderers
 
@@ -300,6 +306,7 @@ class AttackConfig:
         "aligners": each(one_of(_aligners), nonempty=True),
         "thresholds": each(each(POSITIVE), nonempty=True),
         "queries_per_object": at_least(0),
+        "presence": one_of(_presence_rules),
     }
     """A rule per field, checked when the config loads."""
 
@@ -311,6 +318,9 @@ class AttackConfig:
     )
     queries_per_object: int = 0
     """0: every attacker frame is sent."""
+    presence: str = "eps"
+    """The ``decision`` column: the paper's ε rule (``eps``) or the attacker-side classifier (``classifier``);
+    results carry both."""
 
 
 @dataclass(frozen=True)

@@ -102,10 +102,25 @@ def _build_map_task(task: tuple[Path, str, Path, Any]) -> Path:
     return build_map(sequence_dir, tier, out, localize, progress=False)
 
 
+def _tier_weights(tier: str) -> list:
+    """A learned tier's definition (matching thresholds, budget) and the sha256 of its weight files; nothing for
+    the other tiers (their keys stay as they were)."""
+    from dataclasses import asdict
+
+    from synthleak.localize.tiers import get_tier
+
+    spec = get_tier(tier)
+    record = spec.weights_record()
+    if not record:
+        return []
+    return [{"tier": asdict(spec), "weights": {name: entry["sha256"] for name, entry in sorted(record.items())}}]
+
+
 def _map_key(config: StudyConfig, render_key: str, tier: str) -> str:
-    """A map depends on the renders, its tier and the localize settings, not on the other tiers."""
+    """A map depends on the renders, its tier (a learned tier's definition and weights) and the localize settings,
+    not on the other tiers."""
     localize = {k: v for k, v in _section(config, "localize").items() if k != "tiers"}
-    return cache_key("map", render_key, tier, localize)
+    return cache_key("map", render_key, tier, localize, *_tier_weights(tier))
 
 
 def stage_maps(config: StudyConfig, paths: StudyPaths, render_key: str, force: set[str], progress: bool,
@@ -164,7 +179,9 @@ _WORKER_CACHE: dict[str, Any] = {}
 """The localizer (or extractor) the last task in this process used (one map at a time, to bound memory)."""
 
 
-def _make_localizer(map_dir: Path, config: StudyConfig | Any, server_url: str | None):
+def _make_localizer(map_dir: Path, config: StudyConfig | Any, server_url: str | None, defense: Any = None):
+    """The study's server for one map: in process (running the ``defense`` policy if given) or over HTTP (the
+    remote server applies its own policy)."""
     if server_url:
         from synthleak.localize.client import HttpLocalizer
 
@@ -172,7 +189,7 @@ def _make_localizer(map_dir: Path, config: StudyConfig | Any, server_url: str | 
     from synthleak.localize.localizer import Localizer
 
     localize = config.localize if isinstance(config, StudyConfig) else config
-    return Localizer.load(map_dir, localize)
+    return Localizer.load(map_dir, localize, defense=defense)
 
 
 def _worker_cached(key: str, make):
@@ -206,8 +223,8 @@ def load_features(path: Path) -> tuple[Any, tuple[int, int]]:
 
     with np.load(path) as z:
         scores = z["scores"] if "scores" in z.files else None
-        return (Features(z["keypoints"], z["descriptors"], bool(z["binary"]), scores),
-                tuple(int(v) for v in z["image_size"]))
+        size = tuple(int(v) for v in z["image_size"])
+        return Features(z["keypoints"], z["descriptors"], bool(z["binary"]), scores, size), size
 
 
 @dataclass
@@ -263,7 +280,7 @@ def stage_features(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str,
     tasks, marks = [], []
     for tier in sorted({tier for tier, _ in maps}):
         key = cache_key("features", done_key(paths.dataset), done_key(attacker_dataset), genuine, tier,
-                        config.localize.max_keypoints, config.attack.queries_per_object)
+                        config.localize.max_keypoints, config.attack.queries_per_object, *_tier_weights(tier))
         if "features" not in force and is_done(root / tier, key):
             continue
         plans = plans or _query_plans(config, paths, maps, attacker_dataset, genuine)
@@ -294,12 +311,18 @@ class QueryTask:
     items: list[dict[str, Any]]
     """Plan entries plus ``_camera`` (the intrinsics) and ``_image`` (the image's path; sent to a server) or
     ``_features`` (its cached features; matched in process)."""
+    defense: Any = None
+    """The enabled :class:`~synthleak.localize.defense.DefensePolicy` the in-process server applies, or None."""
 
 
 def query_task(task: QueryTask) -> list[str]:
     """Localize each image of the task; one JSON line per query, in the task's order (a worker task)."""
-    key = repr((str(task.map_dir), done_key(task.map_dir), task.server_url, config_to_dict(task.localize)))
-    localizer = _worker_cached(key, lambda: _make_localizer(task.map_dir, task.localize, task.server_url))
+    from synthleak.evaluate.defense_online import log_fields
+
+    key = repr((str(task.map_dir), done_key(task.map_dir), task.server_url, config_to_dict(task.localize),
+                task.defense))
+    localizer = _worker_cached(key, lambda: _make_localizer(task.map_dir, task.localize, task.server_url,
+                                                            task.defense))
     lines = []
     for entry in task.items:
         item = {k: v for k, v in entry.items() if not k.startswith("_")}
@@ -319,6 +342,7 @@ def query_task(task: QueryTask) -> list[str]:
             "num_inliers": int(getattr(result, "num_inliers", 0) or 0),
             "inlier_instance_counts": {str(k): int(v) for k, v in
                                        sorted((getattr(result, "inlier_instance_counts", None) or {}).items())},
+            **log_fields(result, task.defense),
         }, sort_keys=True))
     return lines
 
@@ -331,12 +355,16 @@ def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, 
     By default the attacker images come from the study's dataset and genuine queries are included; a
     variant sweep passes its own ``attacker_dataset`` and ``out_root`` (attacker queries only). In process,
     each image's features are extracted once per tier (:func:`stage_features`) and matched against every
-    room's map; queries run in chunks over ``executor``; each log is in plan order whatever the executor."""
+    room's map; queries run in chunks over ``executor``; each log is in plan order whatever the executor.
+    With ``[defense] enabled`` the in-process server applies the policy to every query
+    (:mod:`synthleak.evaluate.defense_online`)."""
+    from synthleak.evaluate.defense_online import online_policy
     from synthleak.executors import chunks
 
     genuine = attacker_dataset is None
     attacker_dataset = attacker_dataset or paths.dataset
     out_root = out_root or paths.queries
+    policy = online_policy(config.defense)
     logs: dict[tuple[str, str], Path] = {}
     todo: list[tuple[tuple[str, str], Path, str, int]] = []  # (tier, room), folder, key, number of tasks
     tasks: list[QueryTask] = []
@@ -345,7 +373,7 @@ def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, 
     for (tier, room), map_dir in maps.items():
         out = out_root / tier / room
         key = cache_key("queries", done_key(map_dir), done_key(attacker_dataset), genuine,
-                        config.attack.queries_per_object, server_url)
+                        config.attack.queries_per_object, server_url, *([repr(policy)] if policy else []))
         logs[(tier, room)] = out / "queries.jsonl"
         if "queries" not in force and is_done(out, key):
             continue
@@ -358,7 +386,8 @@ def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, 
             for item in plan:
                 item["_features"] = str(_features_path(features_root, tier, item))
                 del item["_image"]
-        parts = [QueryTask(map_dir, config.localize, server_url, tier, room, c) for c in chunks(plan, QUERIES_PER_TASK)]
+        parts = [QueryTask(map_dir, config.localize, server_url, tier, room, c, None if server_url else policy)
+                 for c in chunks(plan, QUERIES_PER_TASK)]
         todo.append(((tier, room), out, key, len(parts)))
         tasks += parts
     results = iter((executor or LocalExecutor(1)).map(query_task, tasks, "queries", progress))
@@ -427,11 +456,14 @@ def _server_funnel(records: list[dict[str, Any]], gt_id: int | None, points: dic
 
 
 def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, str], Path],
-                attacker_dataset: Path | None = None, magnitude: float | None = None, kind: str | None = None
-                ) -> list[dict[str, Any]]:
+                attacker_dataset: Path | None = None, magnitude: float | None = None, kind: str | None = None,
+                undefended: bool = False) -> list[dict[str, Any]]:
     """One results row per (room, attacker object, tier, aligner, thresholds), presence decided
-    leave-one-scene-out and placement scored against the room's ground truth."""
+    leave-one-scene-out and placement scored against the room's ground truth. ``undefended``: attack the
+    answers the server gave before its online defense refused some (the same logged queries)."""
+    from synthleak.attack.presence_features import attack_features
     from synthleak.attack.run import run_attack
+    from synthleak.evaluate.defense_online import without_defense
     from synthleak.evaluate.lookalikes import absent_kind, lookalike_ids
     from synthleak.evaluate.score import score_placement
     from synthleak.evaluate.tables import apply_presence_decisions
@@ -444,6 +476,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
     by_object: dict[tuple[str, str], dict[str, list[dict]]] = {}  # each log parsed once, not once per object
     for name, log in logs.items():
         for q in read_query_log(log):
+            q = without_defense(q) if undefended else q
             by_object.setdefault(name, {}).setdefault(q["attacker_object"], []).append(q)
     map_points = {name: _map_points_per_instance(paths.maps / name[0] / name[1]) for name in logs}
     rows: list[dict[str, Any]] = []
@@ -464,8 +497,11 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
                                     lookalike_ids(obj, room_entries[room]))
             kind_of_pair = None if gt is not None else absent_kind(obj, room_entries[room])
             for aligner in config.attack.aligners:
-                for delta_r, delta_t in config.attack.thresholds:
-                    alignment = run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(local_sent))
+                alignments = [run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(local_sent))
+                              for delta_r, delta_t in config.attack.thresholds]
+                features = attack_features(local_sent, server, alignments, config.attack.thresholds)
+                for (delta_r, delta_t), alignment, trial in zip(config.attack.thresholds, alignments, features,
+                                                                strict=True):
                     estimate = alignment.scene_from_object if alignment.ok else None
                     score = score_placement(
                         estimate, None if gt is None else gt.world_from_object,
@@ -478,9 +514,9 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
                         "eps": float(alignment.eps), "decision": False, "n_queries": len(sent),
                         "n_no_local_pose": len(sent) - len(local_sent), "n_localized": len(server), **funnel,
                         **score, "magnitude": magnitude, "kind": kind,
-                        "absent_kind": kind_of_pair,
+                        "absent_kind": kind_of_pair, **trial,
                     })
-    return apply_presence_decisions(rows)
+    return apply_presence_decisions(rows, config.attack.presence)
 
 
 def stage_attack(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, str], Path], force: set[str]
@@ -626,11 +662,27 @@ def _world_section(config: StudyConfig, world: dict[str, Any]) -> list[str]:
 
 
 def defense_queries(logs: dict[tuple[str, str], Path]) -> list[dict[str, Any]]:
-    """The logged query decisions in the form the offline defense sweep reads."""
+    """The logged query decisions in the form the offline defense sweep reads (a query the online defense
+    refused counts as localized without the defense)."""
+    from synthleak.evaluate.defense_online import localized_without_defense
+
     return [{"tier": q["tier"], "room": q["room"], "genuine": q["genuine"], "attacker_object": q["attacker_object"],
-             "success_without_defense": q["success"], "inlier_instance_counts": q["inlier_instance_counts"]}
+             "success_without_defense": localized_without_defense(q),
+             "inlier_instance_counts": q["inlier_instance_counts"]}
             | ({"closeup": q["closeup"]} if "closeup" in q else {})
             for _, log in sorted(logs.items()) for q in read_query_log(log)]
+
+
+def _defense_online_section(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]],
+                            logs: dict[tuple[str, str], Path]) -> list[str]:
+    """Report lines for the defense online: the attack with and without it on the same queries."""
+    if not config.defense.enabled:
+        return []
+    from synthleak.evaluate.defense_online import holds_decisions, report_section
+
+    records = [q for _, log in sorted(logs.items()) for q in read_query_log(log)]
+    without = attack_rows(config, paths, logs, undefended=True) if holds_decisions(records) else None
+    return report_section(config.defense, records, without, rows, config.attack.thresholds, paths.results)
 
 
 def _room_plots(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]]) -> list[Path]:
@@ -748,6 +800,7 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         markdown_table,
         placement_summary,
         presence_pr_per_room,
+        presence_rules_markdown,
         recall_funnel_markdown,
         table1_markdown,
         table2_markdown,
@@ -794,9 +847,11 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         "False positives among the absent pairs of each kind, and the precision counting only that kind of "
         "absent pair (all present pairs).\n",
         presence_by_absent_kind_markdown(rows),
+        presence_rules_markdown(rows, config.attack.presence),
         "## Placement against ground truth\n",
         placement_summary(rows, config.attack.thresholds),
         *_side_by_side_sections(config, paths, rows, logs),
+        *_defense_online_section(config, paths, rows, logs),
         "## Defense trade-off (paper Fig. 6, exact instance labels)\n",
         "Among the queries the server localizes: genuine queries kept (all, walk-through frames, close-ups of one "
         "object or a small group) and attacker queries rejected, pooled over tiers.\n",

@@ -28,7 +28,8 @@ COLUMNS: tuple[str, ...] = (
     "room", "object", "model_id", "category", "tier", "aligner", "delta_r_deg", "delta_t_m", "present_gt",
     "eps", "decision", "n_queries", "n_no_local_pose", "n_localized", "n_target_top", "map_points_on_target",
     "absent_kind", "n_lookalike_top", "rot_err_deg", "trans_err_m", "iou3d", "scene_from_object_est", "magnitude",
-    "kind",
+    "kind", "decision_eps", "decision_clf", "clf_score", "clf_fallback", "second_eps", "rot_spread",
+    "trans_spread", "disagree_rot_deg", "disagree_trans_m",
 )
 """Stable column order of the results files; extra keys follow, sorted."""
 
@@ -87,17 +88,37 @@ def precision_recall(rows: Sequence[dict]) -> dict[str, float | int]:
 # --------------------------------------------------------------------------------------------- presence
 
 
-def apply_presence_decisions(rows: Sequence[dict]) -> list[dict]:
-    """Copies of ``rows`` with ``decision`` set by leave-one-scene-out within each attack configuration."""
+PRESENCE_RULES = ("eps", "classifier")
+"""``attack.presence``: the paper's ε rule or the classifier of :mod:`synthleak.attack.presence_classifier`."""
+
+
+def apply_presence_decisions(rows: Sequence[dict], rule: str = "eps") -> list[dict]:
+    """Copies of ``rows`` with the presence decisions of leave-one-scene-out within each attack configuration.
+
+    ``decision_eps`` is the paper's ε rule (with ``eps_plus`` / ``eps_minus``); when the rows carry the
+    attacker-side trial features, ``decision_clf`` / ``clf_score`` / ``clf_fallback`` are the classifier's.
+    ``decision`` is the ``rule``'s (``classifier`` needs the features)."""
+    if rule not in PRESENCE_RULES:
+        raise ValueError(f"attack.presence: unknown rule {rule!r} (known: {', '.join(PRESENCE_RULES)})")
     out = [dict(r) for r in rows]
     for group in group_rows(out, CONFIG_KEYS).values():
         records = [
             PresenceRecord(r["room"], r["object"], float(r["eps"]), bool(r["present_gt"])) for r in group
         ]
         for row, dec in zip(group, leave_one_scene_out(records), strict=True):
-            row["decision"] = dec.decision
+            row["decision"] = row["decision_eps"] = dec.decision
             row["eps_plus"] = dec.eps_plus
             row["eps_minus"] = dec.eps_minus
+    from synthleak.attack.presence_classifier import classifier_decisions, has_features
+
+    if has_features(out):
+        for row, clf in zip(out, classifier_decisions(out, [r["decision_eps"] for r in out]), strict=True):
+            row.update(clf)
+            if rule == "classifier":
+                row["decision"] = clf["decision_clf"]
+    elif rule == "classifier":
+        raise ValueError("attack.presence = 'classifier': the rows carry no trial features "
+                         "(synthleak.attack.presence_features)")
     return out
 
 
@@ -344,3 +365,56 @@ def read_results(path: str | Path) -> list[dict]:
             if col in row and row[col] is None and col != "magnitude":
                 row[col] = math.nan
     return rows
+
+
+# --------------------------------------------------------------------------------------------- presence rules
+
+
+def _f1(precision: float, recall: float) -> float:
+    if math.isnan(recall) or precision + recall == 0:
+        return math.nan if math.isnan(recall) else 0.0
+    return 2 * precision * recall / (precision + recall)
+
+
+def presence_rule_comparison(rows: Sequence[dict]) -> list[dict[str, Any]]:
+    """Per attack configuration (variant sweeps left out): P, R and F1 of the ε rule (``decision_eps``) and of
+    the classifier (``decision_clf``) on the same held-out rows, and which wins on F1 (``tie`` if equal)."""
+    main = [r for r in rows if r.get("magnitude") is None and "decision_clf" in r]
+    out = []
+    for key, group in group_rows(main, ["tier", "aligner", "delta_r_deg", "delta_t_m"]).items():
+        row: dict[str, Any] = dict(zip(("tier", "aligner", "delta_r_deg", "delta_t_m"), key, strict=True))
+        for name, column in (("eps", "decision_eps"), ("clf", "decision_clf")):
+            pr = precision_recall([{**r, "decision": r[column]} for r in group])
+            row |= {f"P {name}": pr["precision"], f"R {name}": pr["recall"],
+                    f"F1 {name}": _f1(pr["precision"], pr["recall"]), f"TP/FP {name}": f"{pr['tp']}/{pr['fp']}"}
+        row["n_pairs"] = len(group)
+        row["fallbacks"] = sum(1 for r in group if r.get("clf_fallback"))
+        f_eps, f_clf = row["F1 eps"], row["F1 clf"]
+        row["wins"] = ("tie" if f_eps == f_clf or (math.isnan(f_eps) and math.isnan(f_clf))
+                       else "classifier" if f_clf > f_eps else "eps")
+        out.append(row)
+    return out
+
+
+def presence_rules_markdown(rows: Sequence[dict], rule: str = "eps") -> str:
+    """Report section: :func:`presence_rule_comparison` as a table (empty without classifier decisions)."""
+    table = presence_rule_comparison(rows)
+    if not table:
+        return ""
+    head = ["tier", "aligner", "δr, δt", "P ε", "R ε", "F1 ε", "TP/FP ε", "P clf", "R clf", "F1 clf", "TP/FP clf",
+            "pairs", "fallbacks", "wins"]
+    lines = ["## Presence: the paper's ε rule against a classifier (held-out rooms)\n",
+             "Both decide each room from the other rooms only (leave-one-scene-out): the ε rule with per-object "
+             "ε⁺/ε⁻ medians, the classifier (logistic regression, `synthleak.attack.presence_classifier`) from "
+             "attacker-side features: ε at each threshold pair, share of queries localized, second-best hypothesis, "
+             "inlier residual spread, placement agreement across threshold pairs, the ε rule's margin. "
+             "`fallbacks`: rooms whose training rooms hold one class (ε rule kept). The `decision` column of the "
+             f"results uses `{rule}` (`[attack] presence`).\n",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in table:
+        cells = [r["tier"], r["aligner"], _thr_label(r["delta_r_deg"], r["delta_t_m"]),
+                 _fmt(r["P eps"]), _fmt(r["R eps"]), _fmt(r["F1 eps"]), r["TP/FP eps"],
+                 _fmt(r["P clf"]), _fmt(r["R clf"]), _fmt(r["F1 clf"]), r["TP/FP clf"],
+                 str(r["n_pairs"]), str(r["fallbacks"]), r["wins"]]
+        lines.append("| " + " | ".join(map(str, cells)) + " |")
+    return "\n".join(lines) + "\n"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +35,9 @@ class LocalizationResult:
     defense: DefenseDecision | None = None
     timings: dict[str, float] = field(default_factory=dict)
     """Seconds: ``features``, ``matching`` (retrieval + matching), ``pnp``, ``total``."""
+    withheld_cam_from_world: np.ndarray | None = None
+    """The pose PnP found for a query the enabled defense refused (server-side only: the HTTP answer is
+    ``{"success": false}``); studies log it to attack the same queries with and without the defense."""
 
 
 class Localizer:
@@ -81,7 +84,7 @@ class Localizer:
         data = read_map(map_dir)
         loc = cls(data, get_tier(data.meta["tier"]), config or LocalizeConfig(), defense, weights_dir,
                   decision_log)
-        if loc.config.retrieval == "bow":
+        if loc.config.retrieval == "bow" or loc.tier.learned_matcher:  # a learned matcher: top_k images only
             with np.load(map_dir / "bow.npz") as arrays:
                 loc._bow = BowIndex.from_arrays(arrays)
         return loc
@@ -120,6 +123,8 @@ class Localizer:
         """Pose from the query's already extracted features (this map's tier and ``max_keypoints``): the same
         result as :meth:`localize` on the image they came from, without extracting them again."""
         camera = camera or self.camera
+        if query.image_size == (0, 0):
+            query = replace(query, image_size=(camera.width, camera.height))
         t1 = time.perf_counter()
         if not len(query):  # a blank image: nothing to match
             return LocalizationResult(False, timings={"features": 0.0, "matching": 0.0, "pnp": 0.0, "total": 0.0})
@@ -157,13 +162,13 @@ class Localizer:
         pose[:3] = est["cam_from_world"].matrix()
         success = num_inliers >= self.min_inliers
         decision = self.defense.apply(counts_sorted) if success else None
+        withheld = None
         if decision is not None:
             self._log(decision, num_inliers)
             if self.defense.enabled and not decision.accepted:
-                success = False
-        return LocalizationResult(
-            success, pose if success else None, num_inliers, len(corr), counts_sorted, decision
-        )
+                success, withheld = False, pose
+        return LocalizationResult(success, pose if success else None, num_inliers, len(corr), counts_sorted,
+                                  decision, withheld_cam_from_world=withheld)
 
     def _log(self, decision: DefenseDecision, num_inliers: int) -> None:
         if self.decision_log is not None:

@@ -11,6 +11,7 @@ import hashlib
 import json
 import shutil
 from collections import Counter
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -48,9 +49,13 @@ def inputs_hash(seq: SequenceFiles) -> str:
     return digest.hexdigest()
 
 
-def _map_settings(tier: str, config: LocalizeConfig) -> dict:
-    return {"tier": tier, "max_keypoints": config.max_keypoints, "pairs_per_image": config.pairs_per_image,
-            "format_version": FORMAT_VERSION}
+def _map_settings(tier: str, config: LocalizeConfig, weights: dict) -> dict:
+    settings = {"tier": tier, "max_keypoints": config.max_keypoints, "pairs_per_image": config.pairs_per_image,
+                "format_version": FORMAT_VERSION}
+    if weights:  # learned tiers: new weights or a new definition (thresholds, budget), new map
+        settings["weights_sha256"] = {k: v["sha256"] for k, v in weights.items()}
+        settings["tier_definition"] = json.loads(json.dumps(asdict(get_tier(tier))))  # as map.json reads back
+    return settings
 
 
 def build_map(
@@ -63,7 +68,8 @@ def build_map(
 ) -> Path:
     """Build (or reuse, if ``map.json`` matches the inputs' hash and settings) the map of a sequence.
 
-    Returns ``out_dir``. ``weights_dir`` is only used by the ``disk-lightglue`` tier.
+    Returns ``out_dir``. ``weights_dir`` (learned tiers only) is searched for weight files before the installed
+    weight packages; ``map.json`` records each weight file's sha256 (a map is rebuilt when they change).
     """
     config = config or LocalizeConfig()
     sequence_dir, out_dir = Path(sequence_dir), Path(out_dir)
@@ -72,7 +78,8 @@ def build_map(
     if len(seq.map_frames) < 2:
         raise SequenceError(f"{sequence_dir / 'split.json'}: field 'map' needs at least 2 frames")
     digest = inputs_hash(seq)
-    settings = _map_settings(tier, config)
+    weights = tier_spec.weights_record(weights_dir)
+    settings = _map_settings(tier, config, weights)
     meta_path = out_dir / "map.json"
     if meta_path.is_file():
         old = json.loads(meta_path.read_text())
@@ -136,6 +143,8 @@ def build_map(
         "sequence": str(sequence_dir),
         "inputs_sha256": digest,
         "settings": settings,
+        "keypoint_budget": tier_spec.keypoint_budget(config.max_keypoints),
+        "weights": weights,
         "camera": camera_to_json(seq.camera),
         "num_images": len(names),
         "num_pairs": len(pairs),
