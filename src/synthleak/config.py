@@ -312,7 +312,7 @@ class AttackConfig:
 
 
     local_model: str = "oracle"
-    aligners: list[str] = field(default_factory=lambda: ["alg1", "robust"])
+    aligners: list[str] = field(default_factory=lambda: ["alg1", "robust", "pivot"])
     thresholds: list[tuple[float, float]] = field(
         default_factory=lambda: [(10.0, 0.25), (30.0, 0.5), (60.0, 2.0)]
     )

@@ -413,15 +413,22 @@ def _attacker_local_model(config: StudyConfig, sfm_root: Path, obj_id: str, seq:
                           ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """The attacker's local poses (``cam_from_object`` / ``cam_from_local``) and, for SfM, the
     scoring-only ``object_from_local``."""
-    from synthleak.attack.local_model import oracle_local_poses, sfm_local_poses
+    from synthleak.attack.local_model import oracle_local_poses
 
     if config.attack.local_model == "oracle":
         return oracle_local_poses(seq), None
     if config.attack.local_model == "sfm":
-        target = seq.objects_by_id()[seq.target_instance_id]
-        model = sfm_local_poses(seq, target.extents, sfm_root / obj_id)
+        model = _sfm_model(config, sfm_root, obj_id, seq)
         return dict(model.cam_from_local), model.object_from_local
     raise ValueError(f"attack.local_model: unknown value {config.attack.local_model!r} ({', '.join(LOCAL_MODELS)})")
+
+
+def _sfm_model(config: StudyConfig, sfm_root: Path, obj_id: str, seq: Any):
+    """The attacker's SfM of its orbit (built once, then read from ``sfm_root/obj_id``)."""
+    from synthleak.attack.local_model import cached_sfm_local_poses
+
+    target = seq.objects_by_id()[seq.target_instance_id]
+    return cached_sfm_local_poses(seq, target.extents, sfm_root / obj_id, seed=config.seed)
 
 
 def _map_points_per_instance(map_dir: Path) -> dict[int, int] | None:
@@ -479,9 +486,10 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
         target = seq.objects_by_id()[seq.target_instance_id]
         for tier, room in sorted(logs):
             records = by_object.get((tier, room), {}).get(obj["id"], [])
+            # frames without a local pose (SfM did not register them) are left out of the attack and counted
             sent = {q["frame"] for q in records}
             server = {q["frame"]: None if q["cam_from_world"] is None else np.array(q["cam_from_world"])
-                      for q in records if q["success"]}
+                      for q in records if q["success"] and q["frame"] in local}
             local_sent = {f: p for f, p in local.items() if f in sent}
             gt_id = obj.get("present_in", {}).get(room)
             gt = rooms[room].get(gt_id) if gt_id is not None else None
@@ -489,7 +497,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
                                     lookalike_ids(obj, room_entries[room]))
             kind_of_pair = None if gt is not None else absent_kind(obj, room_entries[room])
             for aligner in config.attack.aligners:
-                alignments = [run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(sent))
+                alignments = [run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(local_sent))
                               for delta_r, delta_t in config.attack.thresholds]
                 features = attack_features(local_sent, server, alignments, config.attack.thresholds)
                 for (delta_r, delta_t), alignment, trial in zip(config.attack.thresholds, alignments, features,
@@ -504,7 +512,8 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
                         "category": target.category, "tier": tier, "aligner": aligner,
                         "delta_r_deg": float(delta_r), "delta_t_m": float(delta_t), "present_gt": gt is not None,
                         "eps": float(alignment.eps), "decision": False, "n_queries": len(sent),
-                        "n_localized": len(server), **funnel, **score, "magnitude": magnitude, "kind": kind,
+                        "n_no_local_pose": len(sent) - len(local_sent), "n_localized": len(server), **funnel,
+                        **score, "magnitude": magnitude, "kind": kind,
                         "absent_kind": kind_of_pair, **trial,
                     })
     return apply_presence_decisions(rows, config.attack.presence)
@@ -744,6 +753,41 @@ def _sweep_section(sweep_rows: list[dict[str, Any]], paths: StudyPaths, plots: l
             markdown_table(stats, columns)]
 
 
+def _side_by_side_sections(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]],
+                           logs: dict[tuple[str, str], Path]) -> list[str]:
+    """The aligners on the same queries; with an SfM local model, oracle vs SfM on the same queries."""
+    from dataclasses import replace
+
+    from synthleak.evaluate.compare import side_by_side_markdown
+    from synthleak.evaluate.sfm_summary import sfm_objects_markdown
+    from synthleak.render.dataset import load_sequence
+
+    parts = []
+    if len(config.attack.aligners) > 1:
+        parts += ["## Aligners side by side (same queries)\n",
+                  "Presence P/R; success: GT-present pairs placed within 10°/0.25 m (unplaced ones fail); medians "
+                  "over the GT-present pairs every aligner placed (`common`).\n",
+                  side_by_side_markdown({a: [r for r in rows if r["aligner"] == a] for a in config.attack.aligners},
+                                        variant_label="aligner")]
+    if config.attack.local_model == "sfm":
+        oracle = attack_rows(replace(config, attack=replace(config.attack, local_model="oracle")), paths, logs)
+        objects = load_index(paths.dataset)["attacker_objects"]
+        models = {o["id"]: _sfm_model(config, paths.root / "sfm", o["id"],
+                                      load_sequence(paths.dataset / "attackers" / o["id"])) for o in objects}
+        parts += ["## Local model: SfM of the attacker's orbit\n",
+                  "pycolmap incremental SfM per orbit, scaled by the object's known size. Scored against the GT "
+                  "orbit: `misregistered` views lie off the LO-RANSAC Sim(3) onto the GT camera centres; "
+                  "`seconds` is the build time (the `all` line: registered share, median |scale error|, total "
+                  "seconds).\n",
+                  sfm_objects_markdown(models),
+                  "## Local model: oracle vs SfM (same queries)\n",
+                  "The same query logs attacked with the exact local poses (`oracle`) and the SfM ones (`sfm`); "
+                  "views SfM did not register are left out of the SfM attack.\n",
+                  side_by_side_markdown({"oracle": oracle, "sfm": rows}, ("tier", "aligner", "delta_r_deg",
+                                                                          "delta_t_m"), variant_label="local model")]
+    return parts
+
+
 def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]],
                  logs: dict[tuple[str, str], Path], timings: dict[str, float],
                  sweep_rows: list[dict[str, Any]] | None = None,
@@ -809,6 +853,7 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         presence_rules_markdown(rows, config.attack.presence),
         "## Placement against ground truth\n",
         placement_summary(rows, config.attack.thresholds),
+        *_side_by_side_sections(config, paths, rows, logs),
         *_defense_online_section(config, paths, rows, logs),
         "## Defense trade-off (paper Fig. 6, exact instance labels)\n",
         "Among the queries the server localizes: genuine queries kept (all, walk-through frames, close-ups of one "

@@ -26,10 +26,10 @@ from synthleak.evaluate.metrics import DEFAULT_THRESHOLDS
 
 COLUMNS: tuple[str, ...] = (
     "room", "object", "model_id", "category", "tier", "aligner", "delta_r_deg", "delta_t_m", "present_gt",
-    "eps", "decision", "n_queries", "n_localized", "n_target_top", "map_points_on_target", "absent_kind",
-    "n_lookalike_top", "rot_err_deg", "trans_err_m", "iou3d", "scene_from_object_est", "magnitude", "kind",
-    "decision_eps", "decision_clf", "clf_score", "clf_fallback", "second_eps", "rot_spread", "trans_spread",
-    "disagree_rot_deg", "disagree_trans_m",
+    "eps", "decision", "n_queries", "n_no_local_pose", "n_localized", "n_target_top", "map_points_on_target",
+    "absent_kind", "n_lookalike_top", "rot_err_deg", "trans_err_m", "iou3d", "scene_from_object_est", "magnitude",
+    "kind", "decision_eps", "decision_clf", "clf_score", "clf_fallback", "second_eps", "rot_spread",
+    "trans_spread", "disagree_rot_deg", "disagree_trans_m",
 )
 """Stable column order of the results files; extra keys follow, sorted."""
 
