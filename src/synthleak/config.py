@@ -75,6 +75,10 @@ class LocalizeConfig:
     tiers: list[str] = field(default_factory=lambda: ["sift"])
     retrieval: str = "exhaustive"
     top_k: int = 10
+    bow_branching: int = 32
+    """Bag-of-words vocabulary tree: children per node ..."""
+    bow_depth: int = 2
+    """... and levels: up to ``bow_branching ** bow_depth`` words (see :mod:`synthleak.localize.retrieval`)."""
     max_keypoints: int = 4096
     pnp_max_error_px: float = 12.0
     min_inliers: int = 0

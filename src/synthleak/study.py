@@ -317,6 +317,7 @@ def query_task(task: QueryTask) -> list[str]:
             "num_inliers": int(getattr(result, "num_inliers", 0) or 0),
             "inlier_instance_counts": {str(k): int(v) for k, v in
                                        sorted((getattr(result, "inlier_instance_counts", None) or {}).items())},
+            "retrieved": list(getattr(result, "retrieved", None) or []),
         }, sort_keys=True))
     return lines
 
@@ -398,18 +399,22 @@ def _map_points_per_instance(map_dir: Path) -> dict[int, int] | None:
     return dict(Counter(int(instance) for instance in json.loads(path.read_text()).values()))
 
 
-def _server_funnel(records: list[dict[str, Any]], gt_id: int | None, points: dict[int, int] | None
-                   ) -> dict[str, int | None]:
-    """Where a present pair's queries get lost on the server: the map's 3D points on the room's instance,
-    and the localized queries whose PnP inliers lie mostly on it (None for absent pairs)."""
+def _server_funnel(records: list[dict[str, Any]], gt_id: int | None, points: dict[int, int] | None,
+                   visible: dict[str, set[int]] | None = None) -> dict[str, int | None]:
+    """Where a present pair's queries get lost on the server: the map's 3D points on the room's instance, the
+    queries whose retrieved map images see it, and the localized queries whose PnP inliers lie mostly on it
+    (None for absent pairs)."""
+    from synthleak.localize.visibility import count_retrieving
+
     if gt_id is None:
-        return {"map_points_on_target": None, "n_target_top": None}
+        return {"map_points_on_target": None, "n_retrieved_target": None, "n_target_top": None}
     top = 0
     for q in records:
         counts = q.get("inlier_instance_counts") or {}
         if q["success"] and counts and max(counts, key=lambda k: (counts[k], -int(k))) == str(gt_id):
             top += 1
-    return {"map_points_on_target": None if points is None else points.get(int(gt_id), 0), "n_target_top": top}
+    return {"map_points_on_target": None if points is None else points.get(int(gt_id), 0),
+            "n_retrieved_target": count_retrieving(records, int(gt_id), visible), "n_target_top": top}
 
 
 def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, str], Path],
@@ -420,6 +425,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
     from synthleak.attack.run import run_attack
     from synthleak.evaluate.score import score_placement
     from synthleak.evaluate.tables import apply_presence_decisions
+    from synthleak.localize.visibility import read_image_instances
     from synthleak.render.dataset import load_sequence
 
     attacker_dataset = attacker_dataset or paths.dataset
@@ -431,6 +437,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
         for q in read_query_log(log):
             by_object.setdefault(name, {}).setdefault(q["attacker_object"], []).append(q)
     map_points = {name: _map_points_per_instance(paths.maps / name[0] / name[1]) for name in logs}
+    visible = {name: read_image_instances(paths.maps / name[0] / name[1]) for name in logs}
     rows: list[dict[str, Any]] = []
     for obj in index["attacker_objects"]:
         seq = load_sequence(attacker_dataset / "attackers" / obj["id"])
@@ -444,7 +451,8 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
             local_sent = {f: p for f, p in local.items() if f in sent}
             gt_id = obj.get("present_in", {}).get(room)
             gt = rooms[room].get(gt_id) if gt_id is not None else None
-            funnel = _server_funnel(records, gt_id if gt is not None else None, map_points[(tier, room)])
+            funnel = _server_funnel(records, gt_id if gt is not None else None, map_points[(tier, room)],
+                                    visible[(tier, room)])
             for aligner in config.attack.aligners:
                 for delta_r, delta_t in config.attack.thresholds:
                     alignment = run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(sent))

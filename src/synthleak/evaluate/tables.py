@@ -26,8 +26,8 @@ from synthleak.evaluate.metrics import DEFAULT_THRESHOLDS
 
 COLUMNS: tuple[str, ...] = (
     "room", "object", "model_id", "category", "tier", "aligner", "delta_r_deg", "delta_t_m", "present_gt",
-    "eps", "decision", "n_queries", "n_localized", "n_target_top", "map_points_on_target", "rot_err_deg",
-    "trans_err_m", "iou3d", "scene_from_object_est", "magnitude", "kind",
+    "eps", "decision", "n_queries", "n_localized", "n_retrieved_target", "n_target_top", "map_points_on_target",
+    "rot_err_deg", "trans_err_m", "iou3d", "scene_from_object_est", "magnitude", "kind",
 )
 """Stable column order of the results files; extra keys follow, sorted."""
 
@@ -253,7 +253,9 @@ def _plain(value: Any) -> Any:
 def recall_funnel(rows: Sequence[dict]) -> list[dict[str, Any]]:
     """Per tier, the GT-present pairs step by step: the object has 3D points in the room's map, at least one
     attacker query localizes, one localizes with most PnP inliers on the object, the pair is decided present
-    (first aligner and thresholds of the rows). Rows of variant sweeps (``magnitude`` set) are left out."""
+    (first aligner and thresholds of the rows); and over their queries: those whose retrieved map images see
+    the room's instance of the object (``n_retrieved_target``; "–" where unknown, e.g. a remote server), and
+    those localized. Rows of variant sweeps (``magnitude`` set) are left out."""
     main = [r for r in rows if r.get("present_gt") and r.get("magnitude") is None]
     if not main:
         return []
@@ -271,10 +273,19 @@ def recall_funnel(rows: Sequence[dict]) -> list[dict[str, Any]]:
                 p is not None for p in points) else math.nan,
             "a query localized": sum(1 for r in pairs if r["n_localized"] > 0),
             "localized on the object": sum(1 for r in pairs if (r.get("n_target_top") or 0) > 0),
+            "queries retrieving the object": _retrieving(pairs),
             "queries localized": f"{sum(r['n_localized'] for r in pairs)}/{sum(r['n_queries'] for r in pairs)}",
             f"decided present ({config[0]}, {config[1]:g}°, {config[2]:g}m)": sum(1 for r in pairs if r["decision"]),
         })
     return out
+
+
+def _retrieving(pairs: Sequence[dict]) -> str:
+    """``"retrieving/sent"`` over the pairs whose ``n_retrieved_target`` is known, "–" if none is."""
+    known = [r for r in pairs if r.get("n_retrieved_target") is not None]
+    if not known:
+        return "–"
+    return f"{sum(r['n_retrieved_target'] for r in known)}/{sum(r['n_queries'] for r in known)}"
 
 
 def recall_funnel_markdown(rows: Sequence[dict]) -> str:
