@@ -1,9 +1,10 @@
-"""Object library: every model builds to its declared size with sane meshes, variants behave, textures carry
-enough texture for SIFT (checked on an embree ray-cast view of each model's front)."""
+"""Object library: every model (furniture and props) builds to its declared size with sane meshes, variants
+behave, textures carry enough texture for SIFT (checked on an embree ray-cast view of each model's front)."""
 
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import cv2
@@ -12,9 +13,10 @@ import pytest
 import trimesh
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
+from synthleak.assets import library as library_mod
 from synthleak.assets import primitives as prim
 from synthleak.assets.catalog import objects_rows, objects_table
-from synthleak.assets.library import ObjectModel, ParamRange, get_model, load_library
+from synthleak.assets.library import ObjectModel, ParamRange, by_role, get_model, load_library
 from synthleak.assets.mesh import ObjectMesh
 from synthleak.assets.textures import TEXTURE_KINDS, hsv_shift, make_texture
 from synthleak.assets.variants import VARIANT_KINDS, variant, variant_from_record
@@ -22,6 +24,9 @@ from synthleak.seeding import make_rng
 
 LIB = load_library()
 IDS = list(LIB)
+FURNITURE = by_role(LIB, "furniture")
+PROPS = by_role(LIB, "prop")
+PROP_IDS = list(PROPS)
 
 
 # ------------------------------------------------------------------------------------------ ray caster
@@ -104,15 +109,18 @@ def sift_count(img: np.ndarray) -> int:
 
 # ------------------------------------------------------------------------------------------ library
 def test_library_size_and_categories():
-    assert len(LIB) >= 30
-    assert len({m.category for m in LIB.values()}) >= 12
+    assert len(FURNITURE) >= 30
+    assert len({m.category for m in FURNITURE.values()}) >= 12
     assert sorted(IDS) == IDS
+    assert len(FURNITURE) + len(PROPS) == len(LIB)
     for m in LIB.values():
         assert m.symmetry in {"none", "2", "4", "z"}
         assert m.support in {"floor", "wall", "ceiling", "surface"}
         assert Path(m.source).is_file()
-    supports = {m.support for m in LIB.values()}
+    supports = {m.support for m in FURNITURE.values()}
     assert supports == {"floor", "wall", "ceiling", "surface"}
+    for m in FURNITURE.values():  # furniture files live at the top level (or imported/), without a role key
+        assert Path(m.source).parent.name != "props", m.model_id
 
 
 def test_get_model_unknown_lists_close_names():
@@ -161,7 +169,11 @@ def test_catalog_rows_and_table():
     assert r["params"]["n_slats"]["integer"] is True and r["scale_range"] == list(
         LIB["chair_ladderback"].scale_range
     )
-    assert objects_table(LIB).row_count == len(LIB)
+    assert {r["id"]: r["role"] for r in rows} == {k: m.role for k, m in LIB.items()}
+    table = objects_table(LIB)
+    assert table.row_count == len(LIB)
+    assert "role" in [c.header for c in table.columns]
+    assert f"{len(FURNITURE)} furniture, {len(PROPS)} props" in str(table.title)
 
 
 # ------------------------------------------------------------------------------------------ meshes
@@ -394,8 +406,18 @@ def test_primitives_closed_and_uv_density():
         ),
         prim.extrude("e", [(0, 0), (1, 0), (0.5, 0.8)], 0.1, tex),
     ]
+    path = [(0.1 * np.cos(t), 0.0, 0.2 + 0.1 * np.sin(t)) for t in np.linspace(-np.pi / 2, np.pi / 2, 9)]
+    parts.append(prim.tube("tube", path, 0.01, tex, segments=8))
     for p in parts:
         _check_part_mesh(p, "primitive")
+    # a planar tube with segments % 4 == 0 has ring points exactly in and across its plane: at the apex of
+    # the arc (tangent along z) the tube reaches x = 0.1 + r exactly, and y spans exactly +-r
+    tube = parts[-1]
+    np.testing.assert_allclose(tube.vertices[:, 0].max(), 0.11, atol=1e-12)
+    np.testing.assert_allclose([tube.vertices[:, 1].min(), tube.vertices[:, 1].max()], [-0.01, 0.01], atol=1e-12)
+    assert 0.09 <= tube.vertices[:, 2].min() < 0.1 and 0.3 < tube.vertices[:, 2].max() <= 0.31
+    with pytest.raises(ValueError, match="repeated"):
+        prim.tube("bad", [(0, 0, 0), (0, 0, 0), (1, 0, 0)], 0.01, tex)
     # density: on the long box the texture spans <= texel_scale metres per unit of uv (no smearing)
     b = parts[0]
     tri = b.vertices[b.faces]
@@ -413,3 +435,148 @@ def test_param_range_dataclass():
     assert isinstance(LIB["bookcase"], ObjectModel)
     with pytest.raises(KeyError):
         LIB["bookcase"].build({"n_shelfs": 3})
+
+
+# ------------------------------------------------------------------------------------------ props
+PROP_CATEGORIES = {
+    "book",
+    "magazine",
+    "box",
+    "cushion",
+    "rug",
+    "poster",
+    "framed_print",
+    "cup",
+    "bowl",
+    "basket",
+    "plant_prop",
+    "shoes",
+    "bin",
+    "bottle",
+    "candle",
+    "laptop",
+    "toy",
+    "blanket",
+}
+
+
+def test_prop_library():
+    """At least 18 props, all in ``object_library/props/``, in prop categories of their own, on floors,
+    surfaces and walls."""
+    assert len(PROPS) >= 18
+    for m in PROPS.values():
+        assert m.role == "prop" and Path(m.source).parent.name == "props", m.model_id
+        assert m.support in {"floor", "surface", "wall"}, m.model_id
+    assert {m.category for m in PROPS.values()} == PROP_CATEGORIES
+    assert not PROP_CATEGORIES & {m.category for m in FURNITURE.values()}
+    assert {m.support for m in PROPS.values()} == {"floor", "surface", "wall"}
+    for m in PROPS.values():
+        if m.category == "rug":  # flat floor coverings of 1.2-2.4 m at every scale
+            assert m.support == "floor" and m.size[2] * m.scale_range[1] <= 0.02
+            assert max(m.size[:2]) * m.scale_range[0] >= 1.2 and max(m.size[:2]) * m.scale_range[1] <= 2.4
+        if m.category in {"poster", "framed_print"}:
+            assert m.support == "wall"
+
+
+@pytest.mark.parametrize("model_id", PROP_IDS)
+def test_prop_builds_exactly_small_and_textured(model_id):
+    """Extents == size at the defaults and at the min and max of every shape parameter, bottom-centre
+    origin, closed parts, < 2,000 triangles, every material drawn with its texture, no support surfaces."""
+    m = PROPS[model_id]
+    for pick in (None, lambda r: r.min, lambda r: r.max):
+        params = None if pick is None else {k: pick(r) for k, r in m.params.items()}
+        mesh = m.build(params)
+        np.testing.assert_allclose(mesh.extents(), m.size, rtol=1e-9, atol=1e-12, err_msg=model_id)
+        lo, hi = mesh.bounds()
+        np.testing.assert_allclose([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]], 0.0, atol=1e-12)
+        assert sum(len(p.faces) for p in mesh.parts) < 2000, model_id
+        assert {p.name for p in mesh.parts} == set(m.textures), model_id
+        for part in mesh.parts:
+            _check_part_mesh(part, model_id)
+            assert part.texture.shape == (m.texture_size, m.texture_size, 3)
+            assert part.texture.tobytes() == m.material_texture(part.name).tobytes()
+    assert m.texture_size in (128, 256, 512)
+    assert not variant(m, 0, 0.0).support_surfaces()
+
+
+def test_prop_layouts_need_little_fitting(monkeypatch):
+    """Builders that map their layout onto the declared box (``props._fit_box``) lay it out within 6 % of the
+    box on every axis, at the defaults and at the parameter extremes (no visibly stretched items)."""
+    from synthleak.assets.builders import props
+
+    ratios: list[np.ndarray] = []
+    fit = props._fit_box
+
+    def spy(b, W, D, H):  # noqa: ANN001, ANN202, N803 - same signature as props._fit_box
+        V = np.concatenate([q.vertices for qs in b.parts.values() for q in qs])
+        ratios.append((V.max(0) - V.min(0)) / np.array([W, D, H]))
+        return fit(b, W, D, H)
+
+    monkeypatch.setattr(props, "_fit_box", spy)
+    for m in PROPS.values():
+        for pick in (None, lambda r: r.min, lambda r: r.max):
+            ratios.clear()
+            m.build(None if pick is None else {k: pick(r) for k, r in m.params.items()})
+            for r in ratios:
+                assert np.all(np.abs(r - 1) <= 0.06), (m.model_id, r)
+
+
+def _props_dir_with(tmp_path: Path, text: str) -> Path:
+    (tmp_path / "props").mkdir()
+    (tmp_path / "props" / "bad.toml").write_text(text)
+    return tmp_path
+
+
+def test_prop_role_key_is_checked(tmp_path):
+    good = Path(PROPS["mug"].source).read_text()
+    assert 'role = "prop"' in good
+    d = _props_dir_with(tmp_path, good.replace('role = "prop"\n', ""))  # a props/ model must say it is one
+    with pytest.raises(ValueError) as e:
+        load_library(d)
+    assert "bad.toml" in str(e.value) and "'role'" in str(e.value)
+    (d / "props" / "bad.toml").write_text(good.replace('role = "prop"', 'role = "clutter"'))
+    with pytest.raises(ValueError, match="role"):
+        load_library(d)
+    (d / "props" / "bad.toml").write_text(good)
+    shutil.copy(LIB["chair_ladderback"].source, d / "chair_ladderback.toml")
+    lib = load_library(d)
+    assert [(k, m.role) for k, m in lib.items()] == [("chair_ladderback", "furniture"), ("mug", "prop")]
+    (d / "mug.toml").write_text(good)  # ids are unique over the top level and props/
+    with pytest.raises(ValueError, match="duplicate id 'mug'"):
+        load_library(d)
+
+
+def test_by_role():
+    assert by_role(LIB, "prop") == PROPS and list(by_role(LIB, "furniture")) == list(FURNITURE)
+    with pytest.raises(ValueError, match="role"):
+        by_role(LIB, "clutter")
+
+
+def test_objects_cli_lists_props_with_role(capsys):
+    from synthleak.cli import main
+
+    assert main(["objects", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    roles = {r["id"]: r["role"] for r in rows}
+    assert roles == {k: m.role for k, m in LIB.items()}
+    assert {k for k, r in roles.items() if r == "prop"} == set(PROPS)
+    assert main(["objects", "--json", "--role", "prop"]) == 0
+    assert [r["id"] for r in json.loads(capsys.readouterr().out)] == PROP_IDS
+    assert main(["objects", "--role", "prop"]) == 0
+    out = capsys.readouterr().out
+    assert f"({len(PROPS)} models: 0 furniture, {len(PROPS)} props;" in out
+
+
+def test_library_loaded_twice_builds_identical_meshes():
+    """Determinism: a fresh load with a cold texture cache rebuilds every prop byte for byte (textures from
+    the model id, layouts from the per-model builder rng)."""
+    first = {k: m.build() for k, m in PROPS.items()}
+    library_mod._cached_texture.cache_clear()
+    again = by_role(load_library(), "prop")
+    assert list(again) == PROP_IDS
+    for k, mesh in first.items():
+        other = again[k].build()
+        assert [p.name for p in mesh.parts] == [p.name for p in other.parts]
+        for a, b in zip(mesh.parts, other.parts, strict=True):
+            assert a.vertices.tobytes() == b.vertices.tobytes() and a.faces.tobytes() == b.faces.tobytes()
+            assert a.uv.tobytes() == b.uv.tobytes() and a.texture.tobytes() == b.texture.tobytes()

@@ -455,3 +455,68 @@ def test_pyrender_shadow_filter_matches_stock_shader() -> None:
     assert np.abs(ours - stock).max() <= 1 and (ours != stock).any(-1).mean() < 0.005
     darker = (unshadowed - ours).max(-1) > 20
     assert darker.mean() > 0.02, f"shadow covers {darker.mean():.2%} of the image"
+
+
+def four_bulb_stage() -> RenderScene:
+    """``tiny_stage`` lit by four bulbs and the panel: pyrender's shader sums the bulbs in the order they are
+    bound, and float sums (fused multiply-adds) round differently in another order."""
+    scene = tiny_stage()
+    bulbs = [((0.5, -0.5, 2.2), 6.0), ((-1.0, 1.0, 2.0), 5.0), ((1.2, 1.1, 1.8), 4.5), ((-1.3, -1.2, 2.4), 7.0)]
+    scene.lights = [Light(f"bulb{i}", "sphere", make_pose(np.eye(3), p), intensity=s, radius=0.05)
+                    for i, (p, s) in enumerate(bulbs)] + scene.lights[1:]
+    return scene
+
+
+def four_bulb_frames() -> list[np.ndarray]:
+    """RGB, depth and ids of the 5 views of :func:`four_bulb_stage` from a fresh pyrender scene."""
+    from synthleak.render.pyrender_backend import PyrenderRenderer
+
+    renderer = PyrenderRenderer(shadows=True)
+    renderer.prepare(four_bulb_stage())
+    frames = [renderer.render(cam, pose, seed=0) for cam, pose in cameras()]
+    return [a for f in frames for a in (f.rgb, f.depth, f.instance)]
+
+
+_FOUR_BULB_SCRIPT = """
+import sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from test_backends import four_bulb_frames
+np.savez(sys.argv[2], *four_bulb_frames())
+"""
+
+
+def test_pyrender_same_bytes_in_fresh_scenes_and_processes(tmp_path) -> None:
+    """Lights are bound in stage order: pyrender iterated a set whose order followed memory addresses, so two
+    runs of one config differed by a grey level at a few pixels (ci-tiny-pyrender: 7 attacker frames, lit by 3-4
+    bulbs). Two scenes in this process and one in another process with another llvmpipe thread count give the
+    same bytes."""
+    if not _has("pyrender"):
+        pytest.skip(BACKENDS["pyrender"][2])
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from synthleak.render.pyrender_backend import PyrenderRenderer
+
+    names = [light.name for light in four_bulb_stage().lights]
+    for _ in range(6):  # fresh scenes: new light nodes at new addresses each time
+        renderer = PyrenderRenderer(shadows=True)
+        renderer.prepare(four_bulb_stage())
+        assert [node.name for node in renderer._scene.light_nodes] == names
+    first, again = four_bulb_frames(), four_bulb_frames()
+    out = tmp_path / "frames.npz"
+    import synthleak
+
+    package_root = str(Path(synthleak.__file__).parents[1])  # the synthleak this process imported
+    env = {**os.environ, "LP_NUM_THREADS": "1", "PYOPENGL_PLATFORM": "egl",
+           "PYTHONPATH": os.pathsep.join(p for p in (package_root, os.environ.get("PYTHONPATH")) if p)}
+    subprocess.run([sys.executable, "-c", _FOUR_BULB_SCRIPT, str(Path(__file__).parent), str(out)], env=env,
+                   check=True, timeout=300)
+    with np.load(out) as data:
+        other = [data[f"arr_{i}"] for i in range(len(data.files))]
+    assert first[0].mean() > 40  # lit
+    for i, (a, b, c) in enumerate(zip(first, again, other, strict=True)):
+        assert a.tobytes() == b.tobytes(), f"array {i}: differs between two scenes in one process"
+        assert a.tobytes() == c.tobytes(), f"array {i}: differs in another process"

@@ -219,14 +219,55 @@ def test_bop_extras_can_be_switched_off(tmp_path) -> None:
     from synthleak.render.pipeline import render_scene_sequence
 
     render = dict(width=48, height=36, spp=1, scene_frames=2, query_every=2)
-    on = render_scene_sequence(box_scene(), tmp_path / "on", StudyConfig("t", 3, render=RenderConfig(**render)),
+    lit = box_scene()  # lit, and the same sequence name (it seeds the camera path): the images must match
+    lit.lights.append(Light("lamp", "sphere", make_pose(np.eye(3), (0.0, -1.0, 2.5)), 8.0))
+    on = render_scene_sequence(lit, tmp_path / "on" / "room", StudyConfig("t", 3, render=RenderConfig(**render)),
                                "scene", progress=False)
-    off = render_scene_sequence(box_scene(), tmp_path / "off",
+    off = render_scene_sequence(lit, tmp_path / "off" / "room",
                                 StudyConfig("t", 3, render=RenderConfig(**render, bop_extras=False)),
                                 "scene", progress=False)
     assert (on / "bop" / "scene_gt_info.json").is_file() and (on / "bop" / "mask").is_dir()
-    assert sorted(p.name for p in (off / "bop").iterdir()) == ["scene_camera.json", "scene_gt.json"]
+    assert sorted(p.name for p in (off / "bop").iterdir()) == ["rgb", "scene_camera.json", "scene_gt.json"]
     assert (on / "images" / "000001.png").read_bytes() == (off / "images" / "000001.png").read_bytes()
+    assert cv2.imread(str(on / "images" / "000001.png")).mean() > 10  # not two black images
+
+
+@pytest.mark.parametrize("links", [True, False])
+def test_bop_scene_folders_hold_rgb(tmp_path, monkeypatch, links) -> None:
+    """bop_toolkit looks for ``<scene>/rgb/<im_id:06d>.png``: every frame's image is there (a hard link to
+    ``images/`` where the file system allows one, a copy otherwise; same bytes), also without the extras,
+    and a resumed run remakes a missing or stale one."""
+    import os
+
+    from synthleak.config import RenderConfig, StudyConfig
+    from synthleak.render.pipeline import render_scene_sequence
+
+    if not links:
+        def no_links(*args, **kwargs):
+            raise OSError(1, "Operation not permitted (no hard links here)")
+
+        monkeypatch.setattr(os, "link", no_links)
+    config = StudyConfig("t", 3, render=RenderConfig(width=48, height=36, spp=1, scene_frames=3, query_every=3,
+                                                     bop_extras=False))
+    scene = box_scene()
+    scene.lights.append(Light("lamp", "sphere", make_pose(np.eye(3), (0.0, -1.0, 2.5)), 8.0))
+    seq = render_scene_sequence(scene, tmp_path / "room", config, "scene", progress=False)
+    images = sorted((seq / "images").iterdir())
+    rgb = sorted((seq / "bop" / "rgb").iterdir())
+    assert [p.name for p in rgb] == [p.name for p in images] == ["000000.png", "000001.png", "000002.png"]
+    gt = json.loads((seq / "bop" / "scene_gt.json").read_text())
+    assert sorted(f"{int(k):06d}.png" for k in gt) == [p.name for p in rgb]  # im_id names, as BOP tools expect
+    for image, copy in zip(images, rgb, strict=True):
+        assert copy.read_bytes() == image.read_bytes()
+        assert os.path.samefile(image, copy) == links
+    rgb[1].unlink()
+    replaced = images[2].with_suffix(".new")  # the image replaced by a new file (a re-render): a stale link
+    replaced.write_bytes(images[2].read_bytes())
+    os.replace(replaced, images[2])
+    render_scene_sequence(scene, tmp_path / "room", config, "scene", progress=False)
+    for image, copy in zip(images, rgb, strict=True):
+        assert copy.read_bytes() == image.read_bytes()
+        assert os.path.samefile(image, copy) == links
 
 
 def test_mesh_behind_the_camera_is_clipped_not_cast_everywhere(bop_seq) -> None:

@@ -129,7 +129,7 @@ def test_table1_hand_computed():
     assert "| r0 | 0.50 | 0.50 |" in md
     assert "| r1 | 0.67 | 1.00 |" in md
     assert "| all | 0.60 | 0.75 |" in md
-    assert "sift 10°, 0.25m P" in md
+    assert "tier `sift`, aligner `alg1`" in md and "| room | 10°, 0.25m P | 10°, 0.25m R |" in md
     assert random_guess_precision(HAND_ROWS) == 0.5
     per_obj = {r["object"]: r for r in presence_pr_per_object(HAND_ROWS)}
     # C: present in r0 only, never decided present -> P 0 (paper convention), R 0
@@ -264,16 +264,18 @@ def test_recall_funnel_counts_each_step() -> None:
         {"success": False, "inlier_instance_counts": {}, "retrieved": ["m2", "m1"]},
     ]
     visible = {"m0": {3}, "m1": {3}, "m2": {3, 7}}  # only m2 sees instance 7: queries 0 and 2 retrieve it
-    assert _server_funnel(records, 7, {7: 120, 3: 50}, visible) == {
-        "map_points_on_target": 120, "n_retrieved_target": 2, "n_target_top": 1}
-    assert _server_funnel(records, 7, None) == {"map_points_on_target": None, "n_retrieved_target": None,
-                                                "n_target_top": 1}
-    assert _server_funnel(records, None, {7: 1}, visible) == {
-        "map_points_on_target": None, "n_retrieved_target": None, "n_target_top": None}
+    assert _server_funnel(records, 7, {7: 120, 3: 50}, {}, visible) == {
+        "map_points_on_target": 120, "n_retrieved_target": 2, "n_target_top": 1, "n_lookalike_top": None}
+    assert _server_funnel(records, 7, None, {}) == {"map_points_on_target": None, "n_retrieved_target": None,
+                                                   "n_target_top": 1, "n_lookalike_top": None}
+    # an absent pair: the localized queries whose inliers lie mostly on a look-alike of the queried object
+    assert _server_funnel(records, None, {7: 1}, {3: "shares_sku"}, visible) == {
+        "map_points_on_target": None, "n_retrieved_target": None, "n_target_top": None, "n_lookalike_top": 1}
+    assert _server_funnel(records, None, {7: 1}, {})["n_lookalike_top"] == 0
     remote = [{k: v for k, v in q.items() if k != "retrieved"} for q in records]  # a server names no images
-    assert _server_funnel(remote, 7, {7: 120}, visible)["n_retrieved_target"] is None
+    assert _server_funnel(remote, 7, {7: 120}, {}, visible)["n_retrieved_target"] is None
     with pytest.raises(ValueError, match="'m9' is not an image of this map"):
-        _server_funnel([{**records[0], "retrieved": ["m9"]}], 7, None, visible)
+        _server_funnel([{**records[0], "retrieved": ["m9"]}], 7, None, {}, visible)
 
     def row(obj, present, points, localized, top, decision, aligner="alg1", magnitude=None, retrieved=None):
         return {"tier": "sift", "room": "r0", "object": obj, "aligner": aligner, "delta_r_deg": 10.0,

@@ -165,3 +165,26 @@ def test_ray_executor_gives_identical_files(ci_tiny_study: Path, tmp_path: Path)
     pytest.importorskip("ray")
     expected = result_digests(ci_tiny_study)
     assert result_digests(_rerun(ci_tiny_study, tmp_path, workers=2, executor="ray")) == expected
+
+
+def test_study_workers_default_to_the_usable_cores(monkeypatch, tmp_path) -> None:
+    """`synthleak study` without --workers uses one worker per core this process may run on (its CPU affinity),
+    not one: the README's study runs on every core. --workers N still wins."""
+    import os
+
+    import synthleak.study
+    from synthleak import cli
+    from synthleak.executors import usable_cpus
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 2, 5}, raising=False)
+    assert usable_cpus() == 3
+    seen: list[int] = []
+
+    def run_study(config, out, **kwargs):  # the plumbing only: the study itself is tested in test_study.py
+        seen.append(kwargs["workers"])
+        return out / "report.md"
+
+    monkeypatch.setattr(synthleak.study, "run_study", run_study)
+    assert cli.main(["study", "ci-tiny", "--out", str(tmp_path), "--quiet"]) == 0
+    assert cli.main(["study", "ci-tiny", "--out", str(tmp_path), "--quiet", "--workers", "1"]) == 0
+    assert seen == [3, 1]

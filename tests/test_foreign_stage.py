@@ -230,3 +230,68 @@ def test_foreign_stage_through_the_render_pipeline(room: Path, tmp_path: Path) -
         for iid, name in names.items():
             points[name].append(pts[instance == iid])
     assert_on_surface({n: np.concatenate(p) for n, p in points.items()}, expected)
+
+
+ATTACKER_WRAPPER = """#usda 1.0
+(
+    customLayerData = {
+        int "synthleak:targetInstanceId" = 1
+    }
+    defaultPrim = "World"
+    metersPerUnit = 0.01
+    upAxis = "Y"
+)
+
+def Xform "World"
+{
+    def "Box" (
+        prepend references = @./asset.usda@
+    )
+    {
+        custom int synthleak:instanceId = 1
+    }
+}
+"""
+"""An attacker setup around a foreign asset without editing it (docs/your-own-models.md): a layer that
+references it, tags it with an instance id and names that id as the target."""
+
+
+def test_folder_of_foreign_stages_renders_without_an_index(tmp_path: Path) -> None:
+    """A folder of stages from another tool (no index.json): each stage that no other stage of the folder
+    references renders as a scene sequence, a stage naming a target instance as an attacker sequence; a single
+    stage file renders too. Through the real CLI."""
+    import subprocess
+    import sys
+
+    from synthleak.render.dataset import load_sequence
+    from tiny_stages import write_config
+
+    folder = tmp_path / "stages"
+    folder.mkdir()
+    write_room(folder)  # room.usda references asset.usda and loads floor.usda as a payload
+    (folder / "attacker_box.usda").write_text(ATTACKER_WRAPPER)
+    config = write_config(tmp_path / "tiny.toml")
+    out = tmp_path / "dataset"
+    result = subprocess.run([sys.executable, "-m", "synthleak.cli", "render", str(config), "--stages", str(folder),
+                             "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert sorted(p.name for p in (out / "scenes").iterdir()) == ["room"]
+    assert sorted(p.name for p in (out / "attackers").iterdir()) == ["attacker_box"]
+    room = load_sequence(out / "scenes" / "room")
+    assert len(room.frames) == 4 and all(room.image_path(f).is_file() for f in room.frames)
+    attacker = load_sequence(out / "attackers" / "attacker_box")
+    assert attacker.kind == "attacker" and attacker.target_instance_id == 1 and len(attacker.frames) == 2
+    for seq in (room, attacker):  # no light in these stages: the default light (and a warning) lights them
+        hit = np.isfinite(seq.depth(seq.frames[0]))
+        lit = seq.rgb(seq.frames[0]).max(axis=-1) > 10
+        assert hit.sum() > 100 and (lit & hit).sum() > 0.6 * hit.sum(), (seq.name, (lit & hit).sum(), hit.sum())
+    assert "the stage has no light" in result.stderr
+    assert (out / "manifest.json").is_file()
+
+    single = tmp_path / "single"
+    result = subprocess.run([sys.executable, "-m", "synthleak.cli", "render", str(config), "--stages",
+                             str(folder / "room.usda"), "--out", str(single), "--quiet"],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert [p.name for p in (single / "scenes").iterdir()] == ["room"] and not (single / "attackers").exists()
+    assert (single / "scenes" / "room" / "images" / "000000.png").read_bytes() == room.image_path(0).read_bytes()

@@ -70,10 +70,10 @@ def hooked(monkeypatch):
     library._default_library.cache_clear()
 
 
-def _export(tmp_path: Path, suffix: str) -> tuple[Path, trimesh.Trimesh]:
-    """The canonical mesh written as a y-up, front -z, centimetre file with an offset."""
+def _export(tmp_path: Path, suffix: str, front: str = "-z") -> tuple[Path, trimesh.Trimesh]:
+    """The canonical mesh written as a y-up, front -z (or ``front``), centimetre file with an offset."""
     canon = _canonical_mesh()
-    rotation = canonical_rotation("y", "-z")  # canonical_from_file
+    rotation = canonical_rotation("y", front)  # canonical_from_file
     source = canon.copy()
     source.vertices = (np.asarray(canon.vertices) @ rotation) / 0.01 + np.array([120.0, -35.0, 48.0])
     path = tmp_path / f"chair{suffix}"
@@ -233,3 +233,60 @@ def test_oversize_and_flag_errors(tmp_path, monkeypatch) -> None:
         import_model(_write(tmp_path / "x.fbx", "x"), "chair", library_dir=lib)
     assert _snapshot(lib) == before
     assert not list(lib.rglob(".tmp-*"))
+
+
+def test_the_library_lists_imported_models(tmp_path) -> None:
+    """`synthleak import`, then `synthleak objects` (table and --json) lists the model: through the real CLI."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    lib = _library(tmp_path)
+    path, _ = _export(tmp_path, ".glb")
+    env = {**os.environ, "SYNTHLEAK_OBJECT_LIBRARY": str(lib), "COLUMNS": "200"}
+
+    def cli(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "synthleak.cli", *args], capture_output=True, text=True,
+                              env=env, timeout=300)
+
+    result = cli("import", str(path), "--category", "crate", "--name", "my_crate", "--up", "y", "--front=-z",
+                 "--units", "cm")
+    assert result.returncode == 0, result.stderr
+    listed = cli("objects", "--json")
+    assert listed.returncode == 0, listed.stderr
+    rows = {row["id"]: row for row in json.loads(listed.stdout)}
+    assert set(rows) == {"stool_round", "my_crate"}
+    assert rows["my_crate"]["builder"] == "imported" and rows["my_crate"]["category"] == "crate"
+    assert rows["my_crate"]["textures"] == {"part_000": "imported"}
+    table = cli("objects")
+    assert table.returncode == 0, table.stderr
+    assert "my_crate" in table.stdout and "stool_round" in table.stdout and "imported" in table.stdout
+
+
+@pytest.mark.parametrize(("up", "front"), [("y", "+z"), ("-y", "+z"), ("z", "+y"), ("x", "+y")])
+def test_the_default_front_follows_the_up_axis(up, front) -> None:
+    """glTF is y up and faces +z: --up y alone imports it; z up (the canonical frame) keeps front +y."""
+    from synthleak.assets.importer import default_front
+
+    assert default_front(up) == front
+    assert np.allclose(canonical_rotation(up), canonical_rotation(up, front))
+
+
+def test_import_gltf_with_only_the_up_axis(tmp_path) -> None:
+    """`synthleak import model.glb --up y` (no --front): the model faces +y in the library, as it faced +z."""
+    import os
+    import subprocess
+    import sys
+
+    lib = _library(tmp_path)
+    path, canon = _export(tmp_path, ".glb", front="+z")
+    env = {**os.environ, "SYNTHLEAK_OBJECT_LIBRARY": str(lib)}
+    result = subprocess.run([sys.executable, "-m", "synthleak.cli", "import", str(path), "--category", "crate",
+                             "--up", "y", "--units", "cm"], capture_output=True, text=True, env=env, timeout=300)
+    assert result.returncode == 0, result.stderr
+    from synthleak.assets.library import load_library
+
+    verts = np.concatenate([p.vertices for p in load_library(lib)["chair"].build().parts])
+    dist, _ = _nearest(verts, np.asarray(canon.vertices))
+    assert dist.max() < 1e-6  # the knob on the front (+y) side is where it was in the canonical mesh

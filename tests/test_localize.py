@@ -29,7 +29,7 @@ from synthleak.localize.client import HttpLocalizer, LocalizationServiceError, e
 from synthleak.localize.defense import contributing_instances
 from synthleak.localize.localizer import InvalidImageError
 from synthleak.localize.sequence import read_sequence
-from synthleak.localize.server import create_app
+from synthleak.localize.server import create_app, response_from_result
 from synthleak.render.base import Camera
 
 CONFIG = LocalizeConfig(max_keypoints=2048, pairs_per_image=8)
@@ -251,6 +251,9 @@ def test_defense_rejects_single_object_view_and_accepts_wide_view(box_quads, box
     assert not result.success and result.cam_from_world is None  # ...and is rejected with it
     assert result.defense is not None and not result.defense.accepted
     assert len(result.defense.contributing) < 3
+    # the refused pose stays on the server side: logged for studies, never in the HTTP answer
+    assert np.array_equal(result.withheld_cam_from_world, undefended.cam_from_world)
+    assert response_from_result(result) == {"success": False}
 
     seq = read_sequence(box_scene)
     wide = defended.localize(seq.rgb(seq.query_frames[0]))
@@ -420,6 +423,36 @@ def test_opencv_tiers_localize(tiny_box_scene, tmp_path, tier):
             assert dist < 0.1 and angle < 2.0
 
 
+def assert_blank_images_not_localized(map_dir: Path, cfg: LocalizeConfig) -> None:
+    """Uniform black, grey and white images: no features (descriptors as wide as the map's) and not localized."""
+    loc = Localizer.load(map_dir, cfg)
+    width = next(f.descriptors.shape[1] for f in loc.data.features if len(f))
+    for level in (0, 128, 255):
+        blank = np.full((loc.camera.height, loc.camera.width, 3), level, np.uint8)
+        features = loc.extractor(blank)
+        assert len(features) == 0 and features.descriptors.shape == (0, width), (level, features.descriptors.shape)
+        result = loc.localize(png_bytes(blank))
+        assert not result.success and result.cam_from_world is None
+
+
+@pytest.mark.parametrize("tier", ["sift", "orb", "akaze"])
+def test_blank_images_are_not_localized_by_the_classic_tiers(tiny_box_scene, tmp_path, tier):
+    import cv2
+
+    if tier == "akaze" and not hasattr(cv2, "AKAZE_create"):
+        pytest.skip("OpenCV without AKAZE")
+    cfg = LocalizeConfig(max_keypoints=1024, pairs_per_image=3)
+    assert_blank_images_not_localized(build_map(tiny_box_scene, tier, tmp_path / tier, cfg, progress=False), cfg)
+
+
+def test_blank_images_are_not_localized_by_kornia_sift(small_box_scene, tmp_path):
+    pytest.importorskip("torch", reason="torch not installed: pip install torch==2.13.0 kornia")
+    pytest.importorskip("kornia", reason="kornia not installed: pip install torch==2.13.0 kornia")
+    cfg = LocalizeConfig(max_keypoints=256, pairs_per_image=3)
+    map_dir = build_map(small_box_scene, "kornia-sift", tmp_path / "ksift", cfg, progress=False)
+    assert_blank_images_not_localized(map_dir, cfg)
+
+
 def test_unknown_tier_is_named():
     with pytest.raises(ValueError, match="unknown localization tier 'surf'.*sift"):
         get_tier("surf")
@@ -433,37 +466,3 @@ def test_kornia_sift_tier(small_box_scene, tmp_path):
     for result, gt in results:
         if result.success:
             assert pose_errors(result.cam_from_world, gt)[0] < 0.1
-
-
-def test_disk_lightglue_without_weights_fails_with_instructions(small_box_scene, tmp_path, monkeypatch):
-    pytest.importorskip("torch", reason="torch not installed: pip install torch==2.13.0 kornia")
-    pytest.importorskip("kornia", reason="kornia not installed: pip install torch==2.13.0 kornia")
-    import torch
-
-    from synthleak.localize.deep import WeightsNotFoundError
-
-    monkeypatch.delenv("SYNTHLEAK_WEIGHTS_DIR", raising=False)
-    monkeypatch.setattr(torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
-    with pytest.raises(WeightsNotFoundError) as info:
-        build_map(small_box_scene, "disk-lightglue", tmp_path / "map", progress=False,
-                  weights_dir=tmp_path / "w")
-    message = str(info.value)
-    assert "depth-save.pth" in message and str(tmp_path / "w") in message and "never downloaded" in message
-
-
-def test_disk_lightglue_runs_end_to_end_with_local_weights(small_box_scene, tmp_path, monkeypatch):
-    torch = pytest.importorskip("torch", reason="torch not installed: pip install torch==2.13.0 kornia")
-    pytest.importorskip("kornia", reason="kornia not installed: pip install torch==2.13.0 kornia")
-    from kornia.feature import DISK, LightGlue
-
-    torch.manual_seed(0)  # random weights: the pipeline must run; localizing is not expected
-    weights = tmp_path / "weights"
-    weights.mkdir()
-    torch.save({"extractor": DISK().state_dict()}, weights / "depth-save.pth")
-    lightglue = LightGlue(features=None, input_dim=128, weights=None)
-    torch.save(lightglue.state_dict(), weights / "disk_lightglue.pth")
-    monkeypatch.setenv("SYNTHLEAK_WEIGHTS_DIR", str(weights))
-    results = run_tier(small_box_scene, "disk-lightglue", tmp_path / "disk", max_keypoints=64,
-                       pairs_per_image=1)
-    assert len(results) == 2
-    assert all(r.timings["features"] > 0 and (r.success or r.cam_from_world is None) for r, _ in results)

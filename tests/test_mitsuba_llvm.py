@@ -26,9 +26,8 @@ needs_llvm = pytest.mark.skipif(_llvm_missing() is not None, reason=f"no usable 
 
 
 def _scene() -> RenderScene:
-    """A textured wall, a floor and a box; a point lamp, a rect light, ambient fill (no emissive mesh: the
-    scalar variant's ``direct`` integrator lights the room from one by sampling it, the one-pass LLVM
-    integrator only shows it glowing)."""
+    """A textured wall, a floor and a box; a point lamp, a rect light, ambient fill (no emissive mesh: both
+    variants sample one as an area light, so the one-pass image would carry its soft-shadow grain)."""
     rng = np.random.default_rng(5)
     texture = np.repeat(np.repeat(rng.integers(0, 256, (8, 8, 3), dtype=np.uint8), 8, 0), 8, 1)
     wall = RenderMesh(

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -327,7 +326,7 @@ def test_determinism_and_resume(tmp_path, room):
     assert full == tree_hashes(b.parent)  # same seed, same bytes, manifest included
     bop_extras = ("bop/scene_gt_info.json", "bop/mask/", "bop/mask_visib/", "bop/depth/", "bop/models/")
     core = [k for k in full if not any(part in k for part in bop_extras)]
-    assert len(core) == 5 * 3 + 7 + 1  # 3 files per frame, 7 metadata files, the manifest
+    assert len(core) == 5 * 4 + 7 + 1  # 3 files per frame and its bop/rgb link, 7 metadata files, the manifest
     assert sum("bop/mask_visib/" in k for k in full) > 0  # the full BOP layout is written too
     # simulate an interrupt: frames partly missing, a stray temp file, metadata not yet written
     (b / "images" / "000002.png").unlink()
@@ -393,8 +392,6 @@ def _corrupt(text: str) -> str:
 
 
 def test_broken_stage_reference(tmp_path):
-    if importlib.util.find_spec("synthleak.scene.usd_io") is None:
-        pytest.skip("synthleak.scene.usd_io (scene engineer) not available yet")
     stage = tmp_path / "room_broken.usda"
     stage.write_text(
         '#usda 1.0\n(\n    defaultPrim = "World"\n)\n\ndef Xform "World" (\n'
@@ -452,11 +449,10 @@ def test_orbit_frames_the_target(support):
         assert np.all((elevations > 5) & (elevations < 65))
 
 
-# ------------------------------------------------------------------------------ real stages (scene engineer)
+# ------------------------------------------------------------------------ real stages (`synthleak scenes`)
 @pytest.fixture(scope="module")
 def real_dataset(tmp_path_factory):
-    """ci-tiny stages from the scene engineer's writer, rendered tiny: 3 walk-through, 2 orbit frames."""
-    pytest.importorskip("synthleak.scene.generate", reason="scene engineer's stage writer not available")
+    """ci-tiny stages from synthleak's stage writer, rendered tiny: 3 walk-through, 2 orbit frames."""
     from synthleak.config import load_config
     from synthleak.render.pipeline import generate
 

@@ -11,7 +11,7 @@ import trimesh
 
 from synthleak.assets.builders import SupportSurface
 from synthleak.assets.mesh import ObjectMesh
-from synthleak.config import ConfigError, config_from_dict
+from synthleak.config import ConfigError, config_from_dict, config_to_dict
 from synthleak.geometry.poses import transform_points
 from synthleak.scene.attacker_env import CANOPY_HEIGHT, PEDESTAL_HEIGHT, _target_pose_and_props, hall_shell
 from synthleak.scene.placement import Item, place_items
@@ -100,10 +100,11 @@ def _table_mesh(width=1.2, depth=0.8, height=0.75) -> tuple[ObjectMesh, list]:
 
 
 def _check_room(objects: list[PlacedObject], size, supported_by: dict[int, int], openings=()) -> None:
-    """The composer's contract: inside the room, on their supports, no intersections."""
+    """The composer's contract: inside the room, on their supports, no intersections (furniture and clutter
+    props; rugs, flat on the floor, may lie under furniture)."""
     x, y, h = size
     by_id = {o.instance_id: o for o in objects}
-    furniture = [o for o in objects if o.role == "object"]
+    furniture = [o for o in objects if o.role in ("object", "prop")]
     meshes = {o.instance_id: _world_mesh(o.mesh, o.world_from_object) for o in objects}
     for o in furniture:
         lo, hi = meshes[o.instance_id].bounds
@@ -137,8 +138,11 @@ def _check_room(objects: list[PlacedObject], size, supported_by: dict[int, int],
         mesh.apply_translation([0.0, 0.0, lift])
         lifted[o.instance_id] = mesh
     ids = sorted(lifted)
+    flat = {i for i in ids if meshes[i].extents[2] < 0.05}
     for i, a in enumerate(ids):
         for b in ids[i + 1 :]:
+            if (a in flat) != (b in flat):
+                continue
             assert not meshes_intersect(lifted[a], lifted[b]), (by_id[a].name, by_id[b].name)
         for shell in (o for o in objects if o.role == "shell"):
             assert not meshes_intersect(lifted[a], meshes[shell.instance_id]), (by_id[a].name, shell.name)
@@ -303,14 +307,7 @@ def test_plan_distinct_objects_and_repeats(library: dict) -> None:
         config_from_dict(
             {
                 "seed": 6,
-                "scenes": config.scenes.__dict__
-                | {
-                    "objects_per_room": [4, 6],
-                    "room_size_x": [4.0, 6.0],
-                    "room_size_y": [3.5, 5.0],
-                    "room_height": [2.5, 2.8],
-                    "lights_per_room": [2, 4],
-                },
+                "scenes": config_to_dict(config)["scenes"],
             }
         ),
         library,
@@ -368,10 +365,10 @@ def test_attacker_target_support(support: str) -> None:
 
 
 def _covering_models(library: dict) -> list[str]:
-    """One model per placement rule (host furniture, surface, wall, ceiling, plain floor), when available."""
-    from synthleak.scene.plan import model_offers_support
+    """One furniture model per placement rule (host furniture, surface, wall, ceiling, plain floor)."""
+    from synthleak.scene.plan import is_prop, model_offers_support
 
-    ids = sorted(library)
+    ids = sorted(m for m in library if not is_prop(library[m]))
     hosts = [m for m in ids if model_offers_support(library[m])]
     groups = [
         hosts,

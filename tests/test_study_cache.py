@@ -17,10 +17,13 @@ from synthleak.study import run_study
 
 @pytest.fixture()
 def counted(monkeypatch: pytest.MonkeyPatch) -> Counter:
-    """Counts renderer creations, frames rendered, maps built and queries localized (serial runs)."""
+    """Counts renderer creations, frames rendered, maps built, query images whose features were extracted and
+    queries localized (serial runs), by wrapping the functions a study calls (``localize_features`` for
+    in-process queries: ``test_new_tier_builds_only_its_maps`` checks the counts are not zero by construction)."""
     import synthleak.localize.localizer as localizer
     import synthleak.localize.mapping as mapping
     import synthleak.render.pipeline as pipeline
+    import synthleak.study as study
 
     calls: Counter = Counter()
 
@@ -35,6 +38,9 @@ def counted(monkeypatch: pytest.MonkeyPatch) -> Counter:
     monkeypatch.setattr(pipeline, "write_frame", counting("frames", pipeline.write_frame))
     monkeypatch.setattr(mapping, "build_map", counting("maps", mapping.build_map))
     monkeypatch.setattr(localizer.Localizer, "localize", counting("queries", localizer.Localizer.localize))
+    monkeypatch.setattr(localizer.Localizer, "localize_features",
+                        counting("queries", localizer.Localizer.localize_features))
+    monkeypatch.setattr(study, "save_features", counting("features", study.save_features))
     return calls
 
 
@@ -79,6 +85,12 @@ def test_new_tier_builds_only_its_maps(ci_tiny_study: Path, tmp_path: Path, coun
     run_study(changed, study, progress=False)
     assert counted["renderer"] == counted["frames"] == 0
     assert counted["maps"] == 2  # orb maps of the two rooms; the sift maps are reused
+    from synthleak.study import read_query_log
+
+    orb = sum(len(read_query_log(p)) for p in sorted((study / "queries" / "orb").glob("*/queries.jsonl")))
+    sift = sum(len(read_query_log(p)) for p in sorted((study / "queries" / "sift").glob("*/queries.jsonl")))
+    assert counted["queries"] == orb == sift > 0  # only orb's queries ran (each image against both rooms)
+    assert 0 < counted["features"] < orb  # orb features of each query image, once for both rooms
     after = _markers(study)
     assert all(after[k] == v for k, v in before.items() if k.startswith(("dataset", "maps/sift", "queries/sift")))
 

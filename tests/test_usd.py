@@ -322,7 +322,9 @@ def test_foreign_stage_units_up_axis_quads(tmp_path: Path) -> None:
     np.testing.assert_allclose(seat.vertices, expected, atol=1e-6)
     info = scene.instances[1] if scene.instances[1].prim_path == "/Root/Chair" else scene.instances[2]
     np.testing.assert_allclose(info.world_from_object[:3, 3], [1.0, 2.0, 0.5], atol=1e-9)
-    np.testing.assert_allclose(info.world_from_object[:3, :3] @ [0, 1, 0], [0, 0, 1], atol=1e-12)
+    # the object frame is converted like the world: +z up (an unrotated Y-up prim is the identity rotation)
+    np.testing.assert_allclose(info.world_from_object[:3, :3], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(info.extents, [0.1, 0.1, 0.0], atol=1e-6)  # the seat quad lies flat (z = height)
 
 
 def test_example_stage_is_current_layout(tmp_path: Path) -> None:

@@ -10,14 +10,18 @@ import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from synthleak.errors import SynthleakError
+
 
 def _cmd_objects(args: argparse.Namespace) -> None:
     from rich.console import Console
 
     from synthleak.assets.catalog import objects_rows, objects_table
-    from synthleak.assets.library import load_library
+    from synthleak.assets.library import by_role, load_library
 
     library = load_library()
+    if args.role:
+        library = by_role(library, args.role)
     if args.json:
         print(json.dumps(objects_rows(library), indent=2))
     else:
@@ -100,7 +104,8 @@ def _cmd_serve(args: argparse.Namespace) -> None:
     from synthleak.localize.server import serve
 
     serve(Path(args.map), host=args.host, port=args.port, config=_study_config(args.config).localize,
-          defense=_defense(args), decision_log=Path(args.decision_log) if args.decision_log else None)
+          defense=_defense(args), decision_log=Path(args.decision_log) if args.decision_log else None,
+          workers=args.workers)
 
 
 def _cmd_localize(args: argparse.Namespace) -> None:
@@ -116,12 +121,13 @@ def _cmd_localize(args: argparse.Namespace) -> None:
 
 
 def _cmd_study(args: argparse.Namespace) -> None:
+    from synthleak import study
     from synthleak.config import load_config
-    from synthleak.study import run_study
+    from synthleak.executors import usable_cpus
 
-    report = run_study(load_config(args.config), Path(args.out), force=args.force or [],
-                       server_url=args.server, progress=not args.quiet, workers=args.workers,
-                       executor=args.executor, address=args.address)
+    report = study.run_study(load_config(args.config), Path(args.out), force=args.force or [],
+                             server_url=args.server, progress=not args.quiet, workers=args.workers or usable_cpus(),
+                             executor=args.executor, address=args.address)
     print(f"report written to {report}")
 
 
@@ -137,6 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("objects", _cmd_objects, "list the object library's models")
     p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--role", choices=["furniture", "prop"], help="only the furniture or only the props")
 
     p = command("scenes", _cmd_scenes, "write the USD stages of a study (rooms + attacker setups)")
     p.add_argument("config", help="config path or name in render_configs/ (e.g. ci-tiny)")
@@ -144,7 +151,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("render", _cmd_render, "render the sequences of already written stages")
     p.add_argument("config")
-    p.add_argument("--stages", required=True, help="folder written by `synthleak scenes`")
+    p.add_argument("--stages", required=True,
+                   help="folder written by `synthleak scenes`, a folder of USD stages, or one stage file")
     p.add_argument("--out", required=True, help="dataset folder")
 
     p = command("generate", _cmd_generate, "stages + renders in one go (resumable)")
@@ -157,7 +165,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", help="model id (default: from the file name)")
     p.add_argument("--up", default="z", choices=["z", "y", "+z", "+y", "-z", "-y", "x", "+x", "-x"],
                    help="the file's up axis")
-    p.add_argument("--front", default="+y", help="the file's front axis (+y, +z, ...; negative: --front=-z)")
+    p.add_argument("--front", default=None,
+                   help="the file's front axis (+y, +z, ...; negative: --front=-z); default: +z with --up y "
+                        "(glTF faces +z), else +y")
     p.add_argument("--units", default="m", choices=["m", "cm", "mm", "in", "ft"])
     size = p.add_mutually_exclusive_group()
     size.add_argument("--height", type=float, help="scale uniformly to this height in metres")
@@ -175,7 +185,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("map", _cmd_map, "build a localization map from a rendered scene sequence")
     p.add_argument("scene", help="a scene sequence folder, e.g. DATASET/scenes/room_000")
-    p.add_argument("--tier", default="sift", help="feature tier: sift, orb, akaze, kornia-sift, disk-lightglue")
+    p.add_argument("--tier", default="sift",
+                   help="feature tier: sift, orb, akaze, kornia-sift, xfeat, xfeat-lighterglue, disk-lightglue, "
+                   "aliked-lightglue (the last four: the [learned] extra, see README)")
     p.add_argument("--out", required=True, help="map folder")
     p.add_argument("--config", help="study config whose [localize] section to use")
 
@@ -186,6 +198,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", help="study config whose [localize] and [defense] sections to use")
     p.add_argument("--defense", action="store_true", help="turn the query defense on (X, k from the config)")
     p.add_argument("--decision-log", help="JSONL file logging every defense decision with its counts")
+    p.add_argument("--workers", type=int, default=None,
+                   help="localizer processes answering queries in parallel (default: one per core, at most 8)")
 
     p = command("localize", _cmd_localize, "localize images against a map (prints one JSON line each)")
     p.add_argument("map")
@@ -200,7 +214,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="append", metavar="STAGE",
                    help="redo a stage: render, maps, features, queries, attack, report (repeatable)")
     p.add_argument("--server", help="attack a running HTTP server instead of in-process localizers")
-    p.add_argument("--workers", type=int, default=1, help="worker processes for rendering and queries")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes for frames, maps and queries (default: the usable cores; 1: no pool)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="where frames, maps and queries run: local processes or Ray tasks (pip install -e .[ray])")
     p.add_argument("--address", default=None,
@@ -219,8 +234,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, _exit_on_sigterm)
     try:
         args.handler(args)
-    except (ValueError, FileNotFoundError, KeyError) as exc:  # our errors name the file and the field
-        print(f"synthleak {args.command}: error: {exc}", file=sys.stderr)
+    except (SynthleakError, ValueError, OSError) as exc:  # our errors name the file and the field
+        message = " ".join(str(exc).split())  # one line, whatever the message holds
+        print(f"synthleak {args.command}: error: {message}", file=sys.stderr)
         return 2
     return 0
 

@@ -1,7 +1,10 @@
 """Study configuration: TOML files in ``render_configs/``, validated against typed dataclasses.
 
-A config may start with ``extends = "NAME"`` to inherit another config of the same folder (deep merge,
-the child wins). Unknown keys and wrong types raise :class:`ConfigError` naming the file and the key.
+A config may start with ``extends = "NAME"`` to inherit another config (deep merge, the child wins); NAME is
+looked up beside the file first, then in ``render_configs/``. Unknown keys, wrong types, names that no registry
+knows (tiers, aligners, renderers, ...) and values out of range raise :class:`ConfigError` naming the file and
+the key, when the config loads: each config class lists a rule per field in its ``RULES``. An empty file is
+refused.
 """
 
 from __future__ import annotations
@@ -10,20 +13,180 @@ import dataclasses
 import tomllib
 import types
 import typing
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
+from synthleak.errors import SynthleakError
 from synthleak.paths import render_configs_dir
 
 
-class ConfigError(ValueError):
+class ConfigError(SynthleakError, ValueError):
     """A config file that cannot be used; the message names the file and the key."""
+
+
+# ------------------------------------------------------------------------------------------------- rules
+Rule = Callable[[Any, str], None]
+"""``rule(value, where)`` raises :class:`ConfigError` (``where`` names the file and the key) for a bad value."""
+
+
+def _fmt(value: Any) -> str:
+    return repr(list(value)) if isinstance(value, tuple) else repr(value)
+
+
+def anything(value: Any, where: str) -> None:
+    """Any value of the declared type (free text, switches)."""
+
+
+def at_least(low: float, exclusive: bool = False) -> Rule:
+    """A number ``>= low`` (``> low`` when ``exclusive``)."""
+
+    def rule(value: Any, where: str) -> None:
+        if value < low or (exclusive and value == low):
+            raise ConfigError(f"{where}: must be {'>' if exclusive else '>='} {low:g}, got {_fmt(value)}")
+
+    return rule
+
+
+def within(low: float, high: float, low_open: bool = False, high_open: bool = False) -> Rule:
+    """A number in the interval from ``low`` to ``high`` (``*_open``: that end excluded)."""
+    text = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+
+    def rule(value: Any, where: str) -> None:
+        if value < low or value > high or (low_open and value == low) or (high_open and value == high):
+            raise ConfigError(f"{where}: must be in {text}, got {_fmt(value)}")
+
+    return rule
+
+
+def one_of(names: Iterable[str] | Callable[[], Iterable[str]]) -> Rule:
+    """A name among ``names`` (a callable is asked when the config loads: a registry, imported lazily)."""
+
+    def rule(value: Any, where: str) -> None:
+        known = list(names() if callable(names) else names)
+        if value not in known:
+            raise ConfigError(f"{where}: unknown name {value!r} (known: {', '.join(known)})")
+
+    return rule
+
+
+def each(item: Rule, nonempty: bool = False) -> Rule:
+    """A list whose items all pass ``item`` (``nonempty``: at least one item)."""
+
+    def rule(value: Any, where: str) -> None:
+        if nonempty and not value:
+            raise ConfigError(f"{where}: must not be empty")
+        for i, v in enumerate(value):
+            item(v, f"{where}[{i}]")
+
+    return rule
+
+
+def ordered(item: Rule = anything) -> Rule:
+    """A ``[min, max]`` pair whose values pass ``item``, with min <= max."""
+
+    def rule(value: Any, where: str) -> None:
+        each(item)(value, where)
+        if value[0] > value[1]:
+            raise ConfigError(f"{where}: [min, max] must be ordered, got {_fmt(value)}")
+
+    return rule
+
+
+def _tiers() -> Iterable[str]:
+    from synthleak.localize.tiers import TIERS
+
+    return TIERS
+
+
+def _aligners() -> Iterable[str]:
+    from synthleak.attack.align import ALIGNERS
+
+    return sorted(ALIGNERS)
+
+
+def _presence_rules() -> Iterable[str]:
+    from synthleak.evaluate.tables import PRESENCE_RULES
+
+    return PRESENCE_RULES
+
+
+def _renderers() -> Iterable[str]:
+    from synthleak.render.registry import available_renderers
+
+    return available_renderers()
+
+
+def _render_option(name: str) -> Callable[[], Iterable[str]]:
+    def names() -> Iterable[str]:
+        from synthleak.render import registry
+
+        return getattr(registry, name)
+
+    return names
+
+
+def _retrieval_methods() -> Iterable[str]:
+    from synthleak.localize.retrieval import RETRIEVAL_METHODS
+
+    return RETRIEVAL_METHODS
+
+
+def _layouts() -> Iterable[str]:
+    from synthleak.scene.placement import LAYOUTS
+
+    return LAYOUTS
+
+
+def _walkthroughs() -> Iterable[str]:
+    from synthleak.render.trajectories import WALKTHROUGHS
+
+    return WALKTHROUGHS
+
+
+def _variant_kinds() -> Iterable[str]:
+    from synthleak.assets.mesh import VARIANT_KINDS
+
+    return VARIANT_KINDS
+
+
+def _study_option(name: str) -> Callable[[], Iterable[str]]:
+    def names() -> Iterable[str]:
+        from synthleak import study
+
+        return getattr(study, name)
+
+    return names
+
+
+POSITIVE = at_least(0.0, exclusive=True)
+COUNT = at_least(1)
 
 
 @dataclass(frozen=True)
 class ScenesConfig:
     """How many rooms, which objects, and how far variants drift from their model."""
+
+    RULES: ClassVar[dict[str, Rule]] = {
+        "rooms": COUNT,
+        "objects_per_room": ordered(at_least(0)),
+        "room_size_x": ordered(POSITIVE),
+        "room_size_y": ordered(POSITIVE),
+        "room_height": ordered(POSITIVE),
+        "distinct_objects": at_least(0),
+        "models": anything,  # model ids are checked against the library when the stages are planned
+        "scene_variant_magnitude": at_least(0.0),
+        "attacker_variant_magnitude": at_least(0.0),
+        "attacker_variant_kinds": each(one_of(_variant_kinds)),
+        "lights_per_room": ordered(at_least(0)),
+        "material_sharing": within(0.0, 1.0),
+        "distractors": ordered(at_least(0)),
+        "clutter": at_least(0.0),
+        "layout": one_of(_layouts),
+    }
+    """A rule per field, checked when the config loads."""
+
 
     rooms: int = 2
     objects_per_room: tuple[int, int] = (4, 10)
@@ -38,11 +201,44 @@ class ScenesConfig:
     attacker_variant_magnitude: float = 0.5
     attacker_variant_kinds: list[str] = field(default_factory=lambda: ["colour", "scale", "shape"])
     lights_per_room: tuple[int, int] = (2, 4)
+    material_sharing: float = 0.0
+    """Probability in [0, 1] that a model's material slot uses a shared catalogue SKU (the same exact texture
+    on every product using it) instead of a model-unique texture; 0 keeps every model's own textures."""
+    distractors: tuple[int, int] = (0, 0)
+    """Per room [min, max] look-alike furniture models that are never attacker objects (never "present")."""
+    clutter: float = 0.0
+    """Clutter level: 1 is a lived-in home (about 0.25 floor props per m² of floor, 0.1 wall props per metre
+    of free wall, 4 small props per m² of table and shelf tops); 0 places none."""
+    layout: str = "scatter"
+    """``home``: furniture as people place it (cupboards, beds, sofas, shelves, desks backed against walls,
+    chairs at tables, lamps beside seats); ``scatter``: anywhere, half of it free-standing."""
 
 
 @dataclass(frozen=True)
 class RenderConfig:
     """Renderer preset: backend, resolution, sampling, and frame counts per sequence."""
+
+    RULES: ClassVar[dict[str, Rule]] = {
+        "renderer": one_of(_renderers),
+        "width": COUNT,
+        "height": COUNT,
+        "hfov_deg": within(0.0, 180.0, low_open=True, high_open=True),
+        "spp": COUNT,
+        "integrator": one_of(_render_option("INTEGRATORS")),
+        "max_depth": COUNT,
+        "filter": one_of(_render_option("FILTERS")),
+        "scene_frames": COUNT,
+        "attacker_frames": COUNT,
+        "query_every": at_least(2),
+        "bop_extras": anything,
+        "raster_shadows": anything,
+        "mitsuba_variant": one_of(_render_option("MITSUBA_VARIANTS")),
+        "walkthrough": one_of(_walkthroughs),
+        "genuine_closeup_fraction": within(0.0, 1.0),
+        "notes": anything,
+    }
+    """A rule per field, checked when the config loads."""
+
 
     renderer: str = "mitsuba"
     width: int = 640
@@ -58,19 +254,38 @@ class RenderConfig:
     """Every n-th walk-through frame is held out as a genuine query and kept out of the map."""
     bop_extras: bool = True
     """Write the whole BOP layout after each sequence (full/visible masks, scene_gt_info, 16-bit depth, models);
-    false keeps only bop/scene_gt.json and scene_camera.json (the attack study does not read the extras)."""
+    false keeps only bop/scene_gt.json, scene_camera.json and rgb/ (hard links to the images; the attack study
+    does not read the extras)."""
     raster_shadows: bool = True
     """pyrender only: shadow maps for rect (spot) and distant lights; off renders RGB about 2x faster."""
     mitsuba_variant: str = "scalar_rgb"
     """mitsuba only: ``scalar_rgb`` (runs anywhere) or ``llvm_ad_rgb`` (vectorised, all lights in one pass:
     measured 7x less CPU per room frame and 13x per attacker frame at 640x480; needs the LLVM shared library,
     version >= 16: ``apt-get install libllvm19`` on Debian 12). Same seed, same bytes within a variant."""
+    walkthrough: str = "loop"
+    """``furniture``: the walk-through visits the furniture and looks at each piece from its open side,
+    0.6-2.6 m away, as a mapping crew would; ``loop``: a loop through the free floor looking across the room."""
+    genuine_closeup_fraction: float = 0.0
+    """Share of the held-out genuine query frames taken 0.5-1.5 m from one object or a small group, as a
+    phone user would (the rest are walk-through frames)."""
     notes: str = ""
 
 
 @dataclass(frozen=True)
 class LocalizeConfig:
     """Localization server: feature tiers, retrieval, PnP."""
+
+    RULES: ClassVar[dict[str, Rule]] = {
+        "tiers": each(one_of(_tiers), nonempty=True),
+        "retrieval": one_of(_retrieval_methods),
+        "top_k": COUNT,
+        "max_keypoints": COUNT,
+        "pnp_max_error_px": POSITIVE,
+        "min_inliers": at_least(0),
+        "pairs_per_image": COUNT,
+    }
+    """A rule per field, checked when the config loads."""
+
 
     tiers: list[str] = field(default_factory=lambda: ["sift"])
     retrieval: str = "exhaustive"
@@ -90,6 +305,16 @@ class LocalizeConfig:
 class AttackConfig:
     """Attacker: local model source, aligners, Alg. 1 thresholds (degrees, metres)."""
 
+    RULES: ClassVar[dict[str, Rule]] = {
+        "local_model": one_of(_study_option("LOCAL_MODELS")),
+        "aligners": each(one_of(_aligners), nonempty=True),
+        "thresholds": each(each(POSITIVE), nonempty=True),
+        "queries_per_object": at_least(0),
+        "presence": one_of(_presence_rules),
+    }
+    """A rule per field, checked when the config loads."""
+
+
     local_model: str = "oracle"
     aligners: list[str] = field(default_factory=lambda: ["alg1", "robust"])
     thresholds: list[tuple[float, float]] = field(
@@ -97,11 +322,24 @@ class AttackConfig:
     )
     queries_per_object: int = 0
     """0: every attacker frame is sent."""
+    presence: str = "eps"
+    """The ``decision`` column: the paper's ε rule (``eps``) or the attacker-side classifier (``classifier``);
+    results carry both."""
 
 
 @dataclass(frozen=True)
 class DefenseConfig:
     """Query defense (paper Sec. 6) and its offline sweep grid."""
+
+    RULES: ClassVar[dict[str, Rule]] = {
+        "enabled": anything,
+        "min_fraction": within(0.0, 1.0, low_open=True),
+        "min_instances": COUNT,
+        "sweep_fractions": each(within(0.0, 1.0, low_open=True)),
+        "sweep_min_instances": each(COUNT),
+    }
+    """A rule per field, checked when the config loads."""
+
 
     enabled: bool = False
     min_fraction: float = 0.1
@@ -112,15 +350,35 @@ class DefenseConfig:
 
 @dataclass(frozen=True)
 class SweepConfig:
-    """Leakage-vs-dissimilarity sweep over attacker variant magnitudes (empty: no sweep)."""
+    """Sweeps (each empty: not swept): leakage against attacker variant magnitude (attackers re-rendered only),
+    and against the hard-world knobs ``material_sharing`` and ``clutter`` (a whole study per value)."""
+
+    RULES: ClassVar[dict[str, Rule]] = {
+        "magnitudes": each(at_least(0.0)),
+        "kinds": each(one_of(_study_option("SWEEP_KINDS"))),
+        "material_sharing": each(within(0.0, 1.0)),
+        "clutter": each(at_least(0.0)),
+    }
+    """A rule per field, checked when the config loads."""
+
 
     magnitudes: list[float] = field(default_factory=list)
     kinds: list[str] = field(default_factory=lambda: ["all"])
+    material_sharing: list[float] = field(default_factory=list)
+    clutter: list[float] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
 class StudyConfig:
     """One study, from stages to report."""
+
+    RULES: ClassVar[dict[str, Rule]] = {
+        "name": anything,
+        "seed": at_least(0),
+        "description": anything,
+    }
+    """A rule per field, checked when the config loads."""
+
 
     name: str
     seed: int = 0
@@ -131,6 +389,17 @@ class StudyConfig:
     attack: AttackConfig = field(default_factory=AttackConfig)
     defense: DefenseConfig = field(default_factory=DefenseConfig)
     sweep: SweepConfig = field(default_factory=SweepConfig)
+
+
+SECTIONS: dict[str, type] = {
+    "scenes": ScenesConfig,
+    "render": RenderConfig,
+    "localize": LocalizeConfig,
+    "attack": AttackConfig,
+    "defense": DefenseConfig,
+    "sweep": SweepConfig,
+}
+"""The tables of a config file and their classes."""
 
 
 def resolve_config_path(name_or_path: str | Path) -> Path:
@@ -144,19 +413,31 @@ def resolve_config_path(name_or_path: str | Path) -> Path:
     raise ConfigError(f"{name_or_path}: no such config file (looked in {render_configs_dir()})")
 
 
+def _parent_path(parent: str, path: Path) -> Path:
+    """The file ``extends = parent`` in ``path`` means: beside ``path`` first, then in ``render_configs/``."""
+    name = parent if parent.endswith(".toml") else f"{parent}.toml"
+    for candidate in (path.parent / name, render_configs_dir() / Path(name).name):
+        if candidate.is_file() and candidate.resolve() != path.resolve():  # a file may extend its namesake
+            return candidate
+    raise ConfigError(f"{path}: extends: no config {parent!r} (looked in {path.parent} and {render_configs_dir()})")
+
+
 def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
-    if path in seen:
+    if path.resolve() in seen:
         raise ConfigError(f"{path}: 'extends' cycle through {[str(p) for p in seen]}")
     try:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from exc
+    if not data:
+        raise ConfigError(f"{path}: the config file is empty (start from `extends = \"study\"` or a copy of "
+                          f"{render_configs_dir() / 'ci-tiny.toml'})")
     parent = data.pop("extends", None)
     if parent is None:
         return data
     if not isinstance(parent, str):
-        raise ConfigError(f"{path}: key 'extends' must be a config name (str)")
-    return _deep_merge(_read_toml(resolve_config_path(parent), (*seen, path)), data)
+        raise ConfigError(f"{path}: extends: must be a config name (str)")
+    return _deep_merge(_read_toml(_parent_path(parent, path), (*seen, path.resolve())), data)
 
 
 def _deep_merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
@@ -220,9 +501,12 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
             raise ConfigError(f"{prefix}{key}: unknown key (allowed: {', '.join(sorted(names))})")
     kwargs = {key: _convert(value, hints[key], f"{prefix}{key}") for key, value in data.items()}
     try:
-        return cls(**kwargs)
+        built = cls(**kwargs)
     except TypeError as exc:
         raise ConfigError(f"{where}: {exc}") from exc
+    for key, rule in getattr(cls, "RULES", {}).items():
+        rule(getattr(built, key), f"{prefix}{key}")
+    return built
 
 
 def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> StudyConfig:
@@ -230,6 +514,16 @@ def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> StudyConfi
     data = dict(data)
     data.setdefault("name", Path(source).stem)
     return _build(StudyConfig, data, f"{source}: ")
+
+
+def check_config(config: StudyConfig, source: str = "<config>") -> StudyConfig:
+    """Check every rule of ``config`` (one built in Python, e.g. with ``dataclasses.replace``); returns it."""
+    for cls, value, where in [(StudyConfig, config, f"{source}: ")] + [
+        (cls, getattr(config, name), f"{source}: {name}.") for name, cls in SECTIONS.items()
+    ]:
+        for key, rule in cls.RULES.items():
+            rule(getattr(value, key), f"{where}{key}")
+    return config
 
 
 def load_config(name_or_path: str | Path) -> StudyConfig:

@@ -18,6 +18,8 @@ from typing import Any, TypeVar
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from synthleak.errors import MissingDependencyError, SynthleakError
+
 T = TypeVar("T")
 R = TypeVar("R")
 
@@ -52,12 +54,21 @@ def worker_thread_cap() -> int | None:
     return max(1, int(value)) if value and value.isdigit() else None
 
 
+def usable_cpus() -> int:
+    """Cores this process may run on: its CPU affinity where the OS has one (a container's or ``taskset``'s
+    limit), else ``os.cpu_count()``; at least 1. The default number of ``synthleak study`` workers."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # macOS, Windows: no affinity call
+        return max(1, os.cpu_count() or 1)
+
+
 def threads_per_worker(workers: int) -> int:
-    """Cores per worker: ``os.cpu_count() // workers`` (at least 1)."""
-    return max(1, (os.cpu_count() or 1) // max(1, int(workers)))
+    """Cores per worker: ``usable_cpus() // workers`` (at least 1)."""
+    return max(1, usable_cpus() // max(1, int(workers)))
 
 
-class ExecutorError(RuntimeError):
+class ExecutorError(SynthleakError, RuntimeError):
     """A task that failed in a worker; the message names the task."""
 
 
@@ -169,8 +180,9 @@ class RayExecutor(Executor):
         try:
             import ray
         except ImportError as exc:
-            raise ImportError("the ray executor needs Ray: pip install -e '.[ray]' (or pip install 'ray[default]')"
-                              ) from exc
+            raise MissingDependencyError(
+                "the ray executor needs Ray: pip install -e '.[ray]' (or pip install 'ray[default]')"
+            ) from exc
         self._ray = ray
         self._started = False
         if not ray.is_initialized():
@@ -178,7 +190,7 @@ class RayExecutor(Executor):
             if address:
                 kwargs["address"] = address
             else:
-                kwargs["num_cpus"] = workers or os.cpu_count() or 1
+                kwargs["num_cpus"] = workers or usable_cpus()
             # workers import synthleak from the driver's environment; pass the driver's egl choice along
             env = {k: os.environ[k] for k in ("PYOPENGL_PLATFORM",) if k in os.environ}
             # one task per CPU: cap each task's native thread pools accordingly (unless the user set them)

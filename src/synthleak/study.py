@@ -16,9 +16,10 @@ from typing import Any
 
 import numpy as np
 
+from synthleak.assets.mesh import VARIANT_KINDS
 from synthleak.atomic_io import atomic_write_bytes, atomic_write_text
 from synthleak.cache import cache_key, done_key, is_done, mark_done
-from synthleak.config import StudyConfig, config_to_dict
+from synthleak.config import StudyConfig, check_config, config_to_dict
 from synthleak.executors import Executor, LocalExecutor
 
 STAGES = ("render", "maps", "features", "queries", "attack", "report")
@@ -101,10 +102,25 @@ def _build_map_task(task: tuple[Path, str, Path, Any]) -> Path:
     return build_map(sequence_dir, tier, out, localize, progress=False)
 
 
+def _tier_weights(tier: str) -> list:
+    """A learned tier's definition (matching thresholds, budget) and the sha256 of its weight files; nothing for
+    the other tiers (their keys stay as they were)."""
+    from dataclasses import asdict
+
+    from synthleak.localize.tiers import get_tier
+
+    spec = get_tier(tier)
+    record = spec.weights_record()
+    if not record:
+        return []
+    return [{"tier": asdict(spec), "weights": {name: entry["sha256"] for name, entry in sorted(record.items())}}]
+
+
 def _map_key(config: StudyConfig, render_key: str, tier: str) -> str:
-    """A map depends on the renders, its tier and the localize settings, not on the other tiers."""
+    """A map depends on the renders, its tier (a learned tier's definition and weights) and the localize settings,
+    not on the other tiers."""
     localize = {k: v for k, v in _section(config, "localize").items() if k != "tiers"}
-    return cache_key("map", render_key, tier, localize)
+    return cache_key("map", render_key, tier, localize, *_tier_weights(tier))
 
 
 def stage_maps(config: StudyConfig, paths: StudyPaths, render_key: str, force: set[str], progress: bool,
@@ -141,8 +157,9 @@ def _query_plan(config: StudyConfig, scene_dataset: Path, attacker_dataset: Path
     plan = []
     if genuine:
         scene = load_sequence(scene_dataset / "scenes" / room)
+        closeups = set(scene.split.get("closeup", []))
         plan += [{"sequence": f"scenes/{room}", "frame": f, "genuine": True, "attacker_object": None}
-                 for f in scene.split["query"]]
+                 | ({"closeup": f in closeups} if closeups else {}) for f in scene.split["query"]]
     for obj in load_index(attacker_dataset)["attacker_objects"]:
         seq = load_sequence(attacker_dataset / "attackers" / obj["id"])
         frames = seq.frames
@@ -162,7 +179,9 @@ _WORKER_CACHE: dict[str, Any] = {}
 """The localizer (or extractor) the last task in this process used (one map at a time, to bound memory)."""
 
 
-def _make_localizer(map_dir: Path, config: StudyConfig | Any, server_url: str | None):
+def _make_localizer(map_dir: Path, config: StudyConfig | Any, server_url: str | None, defense: Any = None):
+    """The study's server for one map: in process (running the ``defense`` policy if given) or over HTTP (the
+    remote server applies its own policy)."""
     if server_url:
         from synthleak.localize.client import HttpLocalizer
 
@@ -170,7 +189,7 @@ def _make_localizer(map_dir: Path, config: StudyConfig | Any, server_url: str | 
     from synthleak.localize.localizer import Localizer
 
     localize = config.localize if isinstance(config, StudyConfig) else config
-    return Localizer.load(map_dir, localize)
+    return Localizer.load(map_dir, localize, defense=defense)
 
 
 def _worker_cached(key: str, make):
@@ -204,8 +223,8 @@ def load_features(path: Path) -> tuple[Any, tuple[int, int]]:
 
     with np.load(path) as z:
         scores = z["scores"] if "scores" in z.files else None
-        return (Features(z["keypoints"], z["descriptors"], bool(z["binary"]), scores),
-                tuple(int(v) for v in z["image_size"]))
+        size = tuple(int(v) for v in z["image_size"])
+        return Features(z["keypoints"], z["descriptors"], bool(z["binary"]), scores, size), size
 
 
 @dataclass
@@ -261,7 +280,7 @@ def stage_features(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str,
     tasks, marks = [], []
     for tier in sorted({tier for tier, _ in maps}):
         key = cache_key("features", done_key(paths.dataset), done_key(attacker_dataset), genuine, tier,
-                        config.localize.max_keypoints, config.attack.queries_per_object)
+                        config.localize.max_keypoints, config.attack.queries_per_object, *_tier_weights(tier))
         if "features" not in force and is_done(root / tier, key):
             continue
         plans = plans or _query_plans(config, paths, maps, attacker_dataset, genuine)
@@ -292,12 +311,18 @@ class QueryTask:
     items: list[dict[str, Any]]
     """Plan entries plus ``_camera`` (the intrinsics) and ``_image`` (the image's path; sent to a server) or
     ``_features`` (its cached features; matched in process)."""
+    defense: Any = None
+    """The enabled :class:`~synthleak.localize.defense.DefensePolicy` the in-process server applies, or None."""
 
 
 def query_task(task: QueryTask) -> list[str]:
     """Localize each image of the task; one JSON line per query, in the task's order (a worker task)."""
-    key = repr((str(task.map_dir), done_key(task.map_dir), task.server_url, config_to_dict(task.localize)))
-    localizer = _worker_cached(key, lambda: _make_localizer(task.map_dir, task.localize, task.server_url))
+    from synthleak.evaluate.defense_online import log_fields
+
+    key = repr((str(task.map_dir), done_key(task.map_dir), task.server_url, config_to_dict(task.localize),
+                task.defense))
+    localizer = _worker_cached(key, lambda: _make_localizer(task.map_dir, task.localize, task.server_url,
+                                                            task.defense))
     lines = []
     for entry in task.items:
         item = {k: v for k, v in entry.items() if not k.startswith("_")}
@@ -317,7 +342,9 @@ def query_task(task: QueryTask) -> list[str]:
             "num_inliers": int(getattr(result, "num_inliers", 0) or 0),
             "inlier_instance_counts": {str(k): int(v) for k, v in
                                        sorted((getattr(result, "inlier_instance_counts", None) or {}).items())},
-            "retrieved": list(getattr(result, "retrieved", None) or []),
+            **log_fields(result, task.defense),
+            # the map images matched (in process only: an HTTP answer names none, the funnel step stays unknown)
+            **({} if task.server_url else {"retrieved": list(result.retrieved)}),
         }, sort_keys=True))
     return lines
 
@@ -330,12 +357,16 @@ def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, 
     By default the attacker images come from the study's dataset and genuine queries are included; a
     variant sweep passes its own ``attacker_dataset`` and ``out_root`` (attacker queries only). In process,
     each image's features are extracted once per tier (:func:`stage_features`) and matched against every
-    room's map; queries run in chunks over ``executor``; each log is in plan order whatever the executor."""
+    room's map; queries run in chunks over ``executor``; each log is in plan order whatever the executor.
+    With ``[defense] enabled`` the in-process server applies the policy to every query
+    (:mod:`synthleak.evaluate.defense_online`)."""
+    from synthleak.evaluate.defense_online import online_policy
     from synthleak.executors import chunks
 
     genuine = attacker_dataset is None
     attacker_dataset = attacker_dataset or paths.dataset
     out_root = out_root or paths.queries
+    policy = online_policy(config.defense)
     logs: dict[tuple[str, str], Path] = {}
     todo: list[tuple[tuple[str, str], Path, str, int]] = []  # (tier, room), folder, key, number of tasks
     tasks: list[QueryTask] = []
@@ -344,7 +375,7 @@ def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, 
     for (tier, room), map_dir in maps.items():
         out = out_root / tier / room
         key = cache_key("queries", done_key(map_dir), done_key(attacker_dataset), genuine,
-                        config.attack.queries_per_object, server_url)
+                        config.attack.queries_per_object, server_url, *([repr(policy)] if policy else []))
         logs[(tier, room)] = out / "queries.jsonl"
         if "queries" not in force and is_done(out, key):
             continue
@@ -357,7 +388,8 @@ def stage_queries(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, 
             for item in plan:
                 item["_features"] = str(_features_path(features_root, tier, item))
                 del item["_image"]
-        parts = [QueryTask(map_dir, config.localize, server_url, tier, room, c) for c in chunks(plan, QUERIES_PER_TASK)]
+        parts = [QueryTask(map_dir, config.localize, server_url, tier, room, c, None if server_url else policy)
+                 for c in chunks(plan, QUERIES_PER_TASK)]
         todo.append(((tier, room), out, key, len(parts)))
         tasks += parts
     results = iter((executor or LocalExecutor(1)).map(query_task, tasks, "queries", progress))
@@ -375,6 +407,10 @@ def read_query_log(path: Path) -> list[dict[str, Any]]:
 
 
 # ----------------------------------------------------------------------------------------------- attack
+LOCAL_MODELS = ("oracle", "sfm")
+"""``attack.local_model``: the attacker's local poses from ground truth, or from pycolmap SfM."""
+
+
 def _attacker_local_model(config: StudyConfig, sfm_root: Path, obj_id: str, seq: Any
                           ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """The attacker's local poses (``cam_from_object`` / ``cam_from_local``) and, for SfM, the
@@ -387,7 +423,7 @@ def _attacker_local_model(config: StudyConfig, sfm_root: Path, obj_id: str, seq:
         target = seq.objects_by_id()[seq.target_instance_id]
         model = sfm_local_poses(seq, target.extents, sfm_root / obj_id)
         return dict(model.cam_from_local), model.object_from_local
-    raise ValueError(f"attack.local_model: unknown value {config.attack.local_model!r} (oracle, sfm)")
+    raise ValueError(f"attack.local_model: unknown value {config.attack.local_model!r} ({', '.join(LOCAL_MODELS)})")
 
 
 def _map_points_per_instance(map_dir: Path) -> dict[int, int] | None:
@@ -400,29 +436,35 @@ def _map_points_per_instance(map_dir: Path) -> dict[int, int] | None:
 
 
 def _server_funnel(records: list[dict[str, Any]], gt_id: int | None, points: dict[int, int] | None,
-                   visible: dict[str, set[int]] | None = None) -> dict[str, int | None]:
-    """Where a present pair's queries get lost on the server: the map's 3D points on the room's instance, the
-    queries whose retrieved map images see it, and the localized queries whose PnP inliers lie mostly on it
-    (None for absent pairs)."""
+                   lookalikes: dict[int, str], visible: dict[str, set[int]] | None = None
+                   ) -> dict[str, int | None]:
+    """Where a pair's queries go on the server. Present pairs: the map's 3D points on the room's instance, the
+    queries whose retrieved map images see it (``visible``: the map's :mod:`~synthleak.localize.visibility`;
+    None where unknown) and the localized queries whose PnP inliers lie mostly on it; absent pairs: the
+    localized queries whose inliers lie mostly on a look-alike (an instance sharing a SKU or the category with
+    the queried object)."""
+    from synthleak.evaluate.lookalikes import top_instance
     from synthleak.localize.visibility import count_retrieving
 
+    tops = [top_instance(q.get("inlier_instance_counts") or {}) for q in records if q["success"]]
     if gt_id is None:
-        return {"map_points_on_target": None, "n_retrieved_target": None, "n_target_top": None}
-    top = 0
-    for q in records:
-        counts = q.get("inlier_instance_counts") or {}
-        if q["success"] and counts and max(counts, key=lambda k: (counts[k], -int(k))) == str(gt_id):
-            top += 1
+        return {"map_points_on_target": None, "n_retrieved_target": None, "n_target_top": None,
+                "n_lookalike_top": sum(1 for t in tops if t in lookalikes)}
     return {"map_points_on_target": None if points is None else points.get(int(gt_id), 0),
-            "n_retrieved_target": count_retrieving(records, int(gt_id), visible), "n_target_top": top}
+            "n_retrieved_target": count_retrieving(records, int(gt_id), visible),
+            "n_target_top": sum(1 for t in tops if t == int(gt_id)), "n_lookalike_top": None}
 
 
 def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, str], Path],
-                attacker_dataset: Path | None = None, magnitude: float | None = None, kind: str | None = None
-                ) -> list[dict[str, Any]]:
+                attacker_dataset: Path | None = None, magnitude: float | None = None, kind: str | None = None,
+                undefended: bool = False) -> list[dict[str, Any]]:
     """One results row per (room, attacker object, tier, aligner, thresholds), presence decided
-    leave-one-scene-out and placement scored against the room's ground truth."""
+    leave-one-scene-out and placement scored against the room's ground truth. ``undefended``: attack the
+    answers the server gave before its online defense refused some (the same logged queries)."""
+    from synthleak.attack.presence_features import attack_features
     from synthleak.attack.run import run_attack
+    from synthleak.evaluate.defense_online import without_defense
+    from synthleak.evaluate.lookalikes import absent_kind, lookalike_ids
     from synthleak.evaluate.score import score_placement
     from synthleak.evaluate.tables import apply_presence_decisions
     from synthleak.localize.visibility import read_image_instances
@@ -430,11 +472,12 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
 
     attacker_dataset = attacker_dataset or paths.dataset
     index = load_index(attacker_dataset)
-    rooms = {room["name"]: load_sequence(paths.dataset / "scenes" / room["name"]).objects_by_id()
-             for room in load_index(paths.dataset)["rooms"]}
+    room_entries = {room["name"]: room for room in load_index(paths.dataset)["rooms"]}
+    rooms = {name: load_sequence(paths.dataset / "scenes" / name).objects_by_id() for name in room_entries}
     by_object: dict[tuple[str, str], dict[str, list[dict]]] = {}  # each log parsed once, not once per object
     for name, log in logs.items():
         for q in read_query_log(log):
+            q = without_defense(q) if undefended else q
             by_object.setdefault(name, {}).setdefault(q["attacker_object"], []).append(q)
     map_points = {name: _map_points_per_instance(paths.maps / name[0] / name[1]) for name in logs}
     visible = {name: read_image_instances(paths.maps / name[0] / name[1]) for name in logs}
@@ -452,10 +495,14 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
             gt_id = obj.get("present_in", {}).get(room)
             gt = rooms[room].get(gt_id) if gt_id is not None else None
             funnel = _server_funnel(records, gt_id if gt is not None else None, map_points[(tier, room)],
-                                    visible[(tier, room)])
+                                    lookalike_ids(obj, room_entries[room]), visible[(tier, room)])
+            kind_of_pair = None if gt is not None else absent_kind(obj, room_entries[room])
             for aligner in config.attack.aligners:
-                for delta_r, delta_t in config.attack.thresholds:
-                    alignment = run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(sent))
+                alignments = [run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(sent))
+                              for delta_r, delta_t in config.attack.thresholds]
+                features = attack_features(local_sent, server, alignments, config.attack.thresholds)
+                for (delta_r, delta_t), alignment, trial in zip(config.attack.thresholds, alignments, features,
+                                                                strict=True):
                     estimate = alignment.scene_from_object if alignment.ok else None
                     score = score_placement(
                         estimate, None if gt is None else gt.world_from_object,
@@ -467,8 +514,9 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
                         "delta_r_deg": float(delta_r), "delta_t_m": float(delta_t), "present_gt": gt is not None,
                         "eps": float(alignment.eps), "decision": False, "n_queries": len(sent),
                         "n_localized": len(server), **funnel, **score, "magnitude": magnitude, "kind": kind,
+                        "absent_kind": kind_of_pair, **trial,
                     })
-    return apply_presence_decisions(rows)
+    return apply_presence_decisions(rows, config.attack.presence)
 
 
 def stage_attack(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, str], Path], force: set[str]
@@ -487,7 +535,8 @@ def stage_attack(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, s
 
 
 # ------------------------------------------------------------------------------------------------ sweep
-SWEEP_KINDS = ("all", "colour", "scale", "shape")
+SWEEP_KINDS = ("all", *VARIANT_KINDS)
+"""``sweep.kinds``: ``all`` varies the kinds of ``scenes.attacker_variant_kinds`` together."""
 
 
 def stage_sweep(config: StudyConfig, paths: StudyPaths, render_key: str, maps: dict[tuple[str, str], Path],
@@ -528,6 +577,35 @@ def stage_sweep(config: StudyConfig, paths: StudyPaths, render_key: str, maps: d
     return rows
 
 
+def stage_world_sweep(config: StudyConfig, paths: StudyPaths, force: set[str], progress: bool,
+                      server_url: str | None = None, executor: Executor | None = None) -> list[dict[str, Any]]:
+    """Leakage against the hard-world knobs: for each value of ``[sweep] material_sharing`` / ``clutter``, the
+    whole study (stages, renders, maps, queries, attack) with that value, under ``sweep/<knob>-<value>/``,
+    each stage cached as in the main study. Rows are tagged ``sweep_param`` / ``sweep_value``."""
+    import dataclasses
+
+    from synthleak.config import SweepConfig
+    from synthleak.evaluate.tables import write_results
+
+    points = [(param, float(v)) for param in ("material_sharing", "clutter") for v in getattr(config.sweep, param)]
+    if points and server_url:
+        raise ValueError("sweep.material_sharing / sweep.clutter build a map per value: they need the in-process "
+                         "server (drop --server)")
+    rows: list[dict[str, Any]] = []
+    for param, value in points:
+        sub = dataclasses.replace(config, scenes=dataclasses.replace(config.scenes, **{param: value}),
+                                  sweep=SweepConfig())
+        sub_paths = StudyPaths(paths.root / "sweep" / f"{param}-{value:g}")
+        render_key = stage_render(sub, sub_paths, force, progress, executor)
+        maps = stage_maps(sub, sub_paths, render_key, force, progress, executor)
+        stage_features(sub, sub_paths, maps, force, progress, executor=executor)
+        logs = stage_queries(sub, sub_paths, maps, force, progress, executor=executor)
+        rows += [r | {"sweep_param": param, "sweep_value": value} for r in attack_rows(sub, sub_paths, logs)]
+    if rows:
+        write_results(rows, paths.results, stem="sweep_world")
+    return rows
+
+
 # ----------------------------------------------------------------------------------------------- report
 def genuine_localization(paths: StudyPaths, logs: dict[tuple[str, str], Path]) -> list[dict[str, Any]]:
     """Accuracy of the held-out genuine queries per (tier, room): the server works as a server should."""
@@ -538,6 +616,7 @@ def genuine_localization(paths: StudyPaths, logs: dict[tuple[str, str], Path]) -
     for (tier, room), log in sorted(logs.items()):
         scene = load_sequence(paths.dataset / "scenes" / room)
         genuine = [q for q in read_query_log(log) if q["genuine"]]
+        closeups = [q for q in genuine if q.get("closeup")]
         rot, trans = [], []
         for q in genuine:
             if q["success"]:
@@ -545,16 +624,65 @@ def genuine_localization(paths: StudyPaths, logs: dict[tuple[str, str], Path]) -
                 rot.append(rotation_error_deg(est[:3, :3], gt[:3, :3]))
                 trans.append(float(np.linalg.norm(camera_centre(est) - camera_centre(gt))))
         out.append({"tier": tier, "room": room, "n": len(genuine), "localized": len(rot),
+                    "closeups": len(closeups), "closeups_localized": sum(1 for q in closeups if q["success"]),
                     "median_rot_err_deg": float(np.median(rot)) if rot else float("nan"),
                     "median_trans_err_m": float(np.median(trans)) if trans else float("nan")})
     return out
 
 
+def world_summary(config: StudyConfig, paths: StudyPaths) -> dict[str, Any]:
+    """The hard-world knobs, what each room holds, and the furniture coverage of each walk-through (from the
+    GT instance masks)."""
+    from synthleak.evaluate.coverage import sequence_coverage
+    from synthleak.render.dataset import load_sequence
+
+    sc, rc = config.scenes, config.render
+    rooms = []
+    for room in load_index(paths.dataset)["rooms"]:
+        coverage = sequence_coverage(load_sequence(paths.dataset / "scenes" / room["name"]))
+        rooms.append({"room": room["name"], "selected": len(room["objects"]),
+                      "distractors": len(room.get("distractors", [])), "props": len(room.get("props", [])),
+                      **{k: v for k, v in coverage.items() if k != "sequence"}})
+    return {"knobs": {"material_sharing": sc.material_sharing, "distractors": list(sc.distractors),
+                      "clutter": sc.clutter, "layout": sc.layout, "walkthrough": rc.walkthrough,
+                      "genuine_closeup_fraction": rc.genuine_closeup_fraction},
+            "rooms": rooms}
+
+
+def _world_section(config: StudyConfig, world: dict[str, Any]) -> list[str]:
+    from synthleak.evaluate.tables import markdown_table
+
+    knobs = ", ".join(f"{k} = {v}" for k, v in world["knobs"].items())
+    columns = ["room", "selected", "distractors", "props", "frames", "median_coverage", "share_below_10pct",
+               "closeups", "closeup_median_coverage"]
+    return ["## The world\n",
+            f"Difficulty knobs: {knobs}. Coverage: fraction of a frame's pixels on furniture and props (not the "
+            "room shell), from the GT instance masks; `share_below_10pct`: walk-through frames under 10 %.\n",
+            markdown_table(world["rooms"], columns, digits=3)]
+
+
 def defense_queries(logs: dict[tuple[str, str], Path]) -> list[dict[str, Any]]:
-    """The logged query decisions in the form the offline defense sweep reads."""
+    """The logged query decisions in the form the offline defense sweep reads (a query the online defense
+    refused counts as localized without the defense)."""
+    from synthleak.evaluate.defense_online import localized_without_defense
+
     return [{"tier": q["tier"], "room": q["room"], "genuine": q["genuine"], "attacker_object": q["attacker_object"],
-             "success_without_defense": q["success"], "inlier_instance_counts": q["inlier_instance_counts"]}
+             "success_without_defense": localized_without_defense(q),
+             "inlier_instance_counts": q["inlier_instance_counts"]}
+            | ({"closeup": q["closeup"]} if "closeup" in q else {})
             for _, log in sorted(logs.items()) for q in read_query_log(log)]
+
+
+def _defense_online_section(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]],
+                            logs: dict[tuple[str, str], Path]) -> list[str]:
+    """Report lines for the defense online: the attack with and without it on the same queries."""
+    if not config.defense.enabled:
+        return []
+    from synthleak.evaluate.defense_online import holds_decisions, report_section
+
+    records = [q for _, log in sorted(logs.items()) for q in read_query_log(log)]
+    without = attack_rows(config, paths, logs, undefended=True) if holds_decisions(records) else None
+    return report_section(config.defense, records, without, rows, config.attack.thresholds, paths.results)
 
 
 def _room_plots(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]]) -> list[Path]:
@@ -587,6 +715,27 @@ def _room_plots(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any
     return out
 
 
+def _world_sweep_section(config: StudyConfig, rows: list[dict[str, Any]], paths: StudyPaths,
+                         plots: list[Path]) -> list[str]:
+    """Report lines for the material-sharing / clutter sweeps (and their plot appended to ``plots``)."""
+    if not rows:
+        return []
+    from synthleak.evaluate.plots import plot_leakage_vs_world
+    from synthleak.evaluate.tables import markdown_table
+    from synthleak.evaluate.world_sweep import leakage_vs_world
+
+    aligner = config.attack.aligners[0]
+    thresholds = config.attack.thresholds[len(config.attack.thresholds) // 2]
+    plots.append(plot_leakage_vs_world(rows, paths.plots / "leakage_vs_world.png", aligner, thresholds))
+    stats = [s for s in leakage_vs_world(rows) if s["aligner"] == aligner
+             and (s["delta_r_deg"], s["delta_t_m"]) == tuple(thresholds)]
+    columns = ["sweep_param", "sweep_value", "tier", "precision", "recall", "tp", "fp", "n_pairs"]
+    return ["## Leakage against the hard-world knobs (material sharing, clutter)\n",
+            f"A whole study per value (rooms, maps and attackers re-made); presence P/R with `{aligner}` at "
+            f"{thresholds[0]:g}°/{thresholds[1]:g} m.\n",
+            markdown_table(stats, columns)]
+
+
 def _sweep_section(sweep_rows: list[dict[str, Any]], paths: StudyPaths, plots: list[Path]) -> list[str]:
     """Report lines for the variant-magnitude sweep (and its plot appended to ``plots``)."""
     if not sweep_rows:
@@ -606,20 +755,25 @@ def _sweep_section(sweep_rows: list[dict[str, Any]], paths: StudyPaths, plots: l
 
 def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]],
                  logs: dict[tuple[str, str], Path], timings: dict[str, float],
-                 sweep_rows: list[dict[str, Any]] | None = None) -> Path:
+                 sweep_rows: list[dict[str, Any]] | None = None,
+                 world_rows: list[dict[str, Any]] | None = None) -> Path:
     """``report.md`` with the paper-shaped tables, placement and defense figures, and the plots."""
+    from synthleak.evaluate.absent_pairs import absent_funnel_markdown, presence_by_absent_kind_markdown
     from synthleak.evaluate.defense_sweep import defense_tradeoff
     from synthleak.evaluate.plots import plot_defense_tradeoff, plot_placement_cdfs, plot_presence_pr
     from synthleak.evaluate.tables import (
         markdown_table,
         placement_summary,
         presence_pr_per_room,
+        presence_rules_markdown,
         recall_funnel_markdown,
         table1_markdown,
         table2_markdown,
     )
 
     paths.plots.mkdir(parents=True, exist_ok=True)
+    world = world_summary(config, paths)
+    atomic_write_text(paths.results / "world.json", json.dumps(world, indent=1))
     genuine = genuine_localization(paths, logs)
     tradeoff = defense_tradeoff(defense_queries(logs), config.defense.sweep_fractions,
                                 config.defense.sweep_min_instances)
@@ -639,20 +793,36 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         f"renderer {config.render.renderer} {config.render.width}x{config.render.height}; "
         f"tiers {', '.join(config.localize.tiers)}; aligners {', '.join(config.attack.aligners)}; "
         f"local model {config.attack.local_model}.\n",
-        "## Genuine queries (held-out walk-through frames)\n",
-        markdown_table(genuine, ["tier", "room", "n", "localized", "median_rot_err_deg", "median_trans_err_m"]),
+        *_world_section(config, world),
+        "## Genuine queries (held-out frames: walk-through and close-ups)\n",
+        markdown_table(genuine, ["tier", "room", "n", "localized", "closeups", "closeups_localized",
+                                 "median_rot_err_deg", "median_trans_err_m"]),
         "## Presence (paper Table 1 shape)\n",
         table1_markdown(rows),
         "## Presence per object (paper appendix table shape)\n",
         table2_markdown(rows),
         "## Where presence is lost (GT-present pairs, server side)\n",
         recall_funnel_markdown(rows),
+        "## Where false presence comes from (GT-absent pairs, server side)\n",
+        "Absent pairs by what the room holds: an instance sharing a material SKU with the queried object "
+        "(`shares_sku`), else one of its category (`same_category`), else neither (`unrelated`). "
+        "*Localized on a look-alike*: a localized query has most PnP inliers on such an instance.\n",
+        absent_funnel_markdown(rows),
+        "## Presence by kind of absent pair\n",
+        "False positives among the absent pairs of each kind, and the precision counting only that kind of "
+        "absent pair (all present pairs).\n",
+        presence_by_absent_kind_markdown(rows),
+        presence_rules_markdown(rows, config.attack.presence),
         "## Placement against ground truth\n",
         placement_summary(rows, config.attack.thresholds),
+        *_defense_online_section(config, paths, rows, logs),
         "## Defense trade-off (paper Fig. 6, exact instance labels)\n",
+        "Among the queries the server localizes: genuine queries kept (all, walk-through frames, close-ups of one "
+        "object or a small group) and attacker queries rejected, pooled over tiers.\n",
         markdown_table([t for t in tradeoff if t.get("tier") == "all"],
                         [k for k in (tradeoff[0] if tradeoff else {}) if k != "tier"]),
         *_sweep_section(sweep_rows or [], paths, plots),
+        *_world_sweep_section(config, world_rows or [], paths, plots),
         "## Plots\n",
         "\n".join(f"![{p.stem}](plots/{p.name})" for p in plots) + "\n",
         "## Wall time per stage (this run; cached stages take ~0 s)\n",
@@ -680,6 +850,7 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
             return run_study(config, out, force, server_url, progress, workers, pool)
 
     forced = _check_force(force)
+    check_config(config, config.name)  # a config built in Python fails here, not after the renders
     paths = StudyPaths(Path(out))
     paths.root.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
@@ -698,6 +869,7 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
     rows = timed("attack", stage_attack, config, paths, logs, forced)
     sweep_rows = timed("sweep", stage_sweep, config, paths, render_key, maps, forced, progress, server_url,
                        executor)
-    report = timed("report", stage_report, config, paths, rows, logs, timings, sweep_rows)
+    world_rows = timed("world sweep", stage_world_sweep, config, paths, forced, progress, server_url, executor)
+    report = timed("report", stage_report, config, paths, rows, logs, timings, sweep_rows, world_rows)
     atomic_write_text(paths.root / "timings.json", json.dumps(timings, indent=1))
     return report

@@ -19,6 +19,7 @@ def objects_rows(library: dict[str, ObjectModel]) -> list[dict[str, Any]]:
             {
                 "id": m.model_id,
                 "category": m.category,
+                "role": m.role,
                 "size": [round(s, 4) for s in m.size],
                 "symmetry": m.symmetry,
                 "support": m.support,
@@ -29,7 +30,8 @@ def objects_rows(library: dict[str, ObjectModel]) -> list[dict[str, Any]]:
                 },
                 "scale_range": list(m.scale_range),
                 "colour_range": list(m.colour_range),
-                "textures": {k: v["kind"] for k, v in sorted(m.textures.items())},
+                # procedural textures name their kind; an imported model's parts carry image files
+                "textures": {k: v.get("kind", "imported") for k, v in sorted(m.textures.items())},
                 "source": m.source,
             }
         )
@@ -41,14 +43,16 @@ def _fmt(v: float, integer: bool) -> str:
 
 
 def objects_table(library: dict[str, ObjectModel]) -> Table:
-    """A rich table of the library (id, category, size, symmetry, support, parameter and scale ranges)."""
+    """A rich table of the library (id, category, role, size, symmetry, support, parameter and scale ranges)."""
+    n_props = sum(m.role == "prop" for m in library.values())
     t = Table(
-        title=f"object library ({len(library)} models, "
+        title=f"object library ({len(library)} models: {len(library) - n_props} furniture, {n_props} props; "
         f"{len({m.category for m in library.values()})} categories)"
     )
     for col in (
         "id",
         "category",
+        "role",
         "size x,y,z (m)",
         "sym",
         "support",
@@ -66,6 +70,7 @@ def objects_table(library: dict[str, ObjectModel]) -> Table:
         t.add_row(
             row["id"],
             row["category"],
+            row["role"],
             " x ".join(f"{s:.2f}" for s in row["size"]),
             row["symmetry"],
             row["support"],

@@ -39,6 +39,7 @@ import numpy as np
 
 from synthleak.assets.library import SUPPORTS, SYMMETRIES, ObjectModel
 from synthleak.assets.mesh import ObjectMesh, TexturedPart
+from synthleak.errors import UnknownNameError
 
 IMPORTED_BUILDER = "imported"
 IMPORTED_DIR = "imported"
@@ -227,7 +228,9 @@ def is_imported(model: ObjectModel) -> bool:
 def imported_texture(model: ObjectModel, part: str) -> np.ndarray:
     """The stored (read-only) texture of one part of an imported model."""
     if part not in model.textures:
-        raise KeyError(f"imported model {model.model_id!r} has no part {part!r}; it has {sorted(model.textures)}")
+        raise UnknownNameError(
+            f"imported model {model.model_id!r} has no part {part!r}; it has {sorted(model.textures)}"
+        )
     return read_texture(Path(model.source).parent / model.textures[part]["file"])
 
 
@@ -238,7 +241,7 @@ def build_imported(
     variants). Imported models have no shape parameters: any non-None ``params`` entry raises ``KeyError``."""
     given = {k: v for k, v in (params or {}).items() if v is not None}
     if given:
-        raise KeyError(
+        raise UnknownNameError(
             f"model {model.model_id!r} is an imported mesh and has no shape parameters (got {sorted(given)})"
         )
     base = Path(model.source).parent

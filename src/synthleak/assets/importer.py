@@ -4,7 +4,8 @@
 (via :func:`synthleak.scene.usd_io.read_render_scene`, which already applies the stage's ``metersPerUnit`` and
 ``upAxis``), then
 
-1. rotates so the file's ``up`` axis becomes +z and its ``front`` axis +y, converts ``units`` to metres,
+1. rotates so the file's ``up`` axis becomes +z and its ``front`` axis +y (default: +z for a y-up file, as glTF
+   faces, else +y), converts ``units`` to metres,
 2. recentres to the bottom centre of the footprint (x / y bounding-box centre, lowest z at 0),
 3. optionally scales uniformly (``height`` in metres or a factor ``scale``),
 
@@ -15,8 +16,8 @@ naming the file: no geometry, a texture without UVs, a missing texture file, non
 :data:`MAX_IMPORT_BYTES` (checked before reading).
 
 Imported models have no shape parameters: colour and scale variants work; asking for ``shape`` variants warns
-(:func:`check_variant_kinds`). Until ``synthleak.assets.library`` understands ``builder = "imported"``,
-:func:`install_library_hook` teaches it (see docs/your-own-models.md and the patch in the lead's report).
+(:func:`check_variant_kinds`). ``synthleak.assets.library`` reads ``builder = "imported"`` models natively;
+:func:`install_library_hook` is kept for callers of older versions and does nothing then.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ from synthleak.assets.import_store import (
     ply_bytes,
 )
 from synthleak.assets.library import SUPPORTS, SYMMETRIES, ObjectModel
+from synthleak.atomic_io import folder_mode
 from synthleak.render.dataset import encode_png
 
 MAX_IMPORT_BYTES = 2 * 1024**3
@@ -64,6 +66,7 @@ __all__ = [
     "build_imported",
     "canonical_rotation",
     "check_variant_kinds",
+    "default_front",
     "import_model",
     "imported_texture",
     "install_library_hook",
@@ -103,8 +106,16 @@ def _axis(path: Path, flag: str, value: str) -> np.ndarray:
     return out
 
 
-def canonical_rotation(up: str = "z", front: str = "+y", path: Path | str = "<model>") -> np.ndarray:
-    """Rotation (3, 3) taking the file's ``up`` axis to +z and its ``front`` axis to +y (a proper rotation)."""
+def default_front(up: str) -> str:
+    """The front axis assumed when none is given: ``+z`` for a y-up file (glTF / GLB: y up, facing +z), ``+y``
+    otherwise (synthleak's canonical frame: z up, front +y)."""
+    return "+z" if str(up).strip().lower().lstrip("+-") == "y" else "+y"
+
+
+def canonical_rotation(up: str = "z", front: str | None = None, path: Path | str = "<model>") -> np.ndarray:
+    """Rotation (3, 3) taking the file's ``up`` axis to +z and its ``front`` axis (default:
+    :func:`default_front`) to +y (a proper rotation)."""
+    front = default_front(up) if front is None else front
     u, f = _axis(Path(path), "up", up), _axis(Path(path), "front", front)
     if abs(float(u @ f)) > 0.5:
         raise ValueError(f"{path}: --front {front!r} must be perpendicular to --up {up!r}")
@@ -303,7 +314,7 @@ def import_model(
     *,
     name: str | None = None,
     up: str = "z",
-    front: str = "+y",
+    front: str | None = None,
     units: str = "m",
     height: float | None = None,
     scale: float | None = None,
@@ -315,8 +326,9 @@ def import_model(
     """Import ``path`` into ``library_dir/imported/<id>/`` (see the module docstring); returns the model.
 
     ``name``: the model id (default: the file stem as ``[a-z0-9_]+``); ``up`` / ``front``: the file's axes
-    (``x``, ``y``, ``z`` with an optional sign); ``units``: m, cm, mm, in, ft; ``height`` (metres) or ``scale``
-    (factor, after unit conversion), not both; ``overwrite``: replace an earlier import of the same id."""
+    (``x``, ``y``, ``z`` with an optional sign; ``front`` defaults to ``+z`` for y up, else ``+y``); ``units``:
+    m, cm, mm, in, ft; ``height`` (metres) or ``scale`` (factor, after unit conversion), not both;
+    ``overwrite``: replace an earlier import of the same id."""
     path = Path(path)
     if units not in UNITS:
         raise ValueError(f"{path}: --units {units!r}: expected one of {', '.join(UNITS)}")
@@ -334,6 +346,7 @@ def import_model(
     model_id = name if name is not None else _slug(path.stem)
     if not re.fullmatch(r"[a-z0-9_]+", model_id):
         raise ValueError(f"{path}: --name {model_id!r} must match [a-z0-9_]+")
+    front = default_front(up) if front is None else front
     rotation = canonical_rotation(up, front, path)
     library = _library_dir(library_dir)
     if not library.is_dir():
@@ -406,6 +419,7 @@ def _write_folder(target: Path, files: dict[str, bytes]) -> None:
     """Write ``files`` into a temporary sibling folder, then rename it onto ``target`` (replacing it)."""
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{target.name}-", dir=target.parent))
+    tmp.chmod(folder_mode())  # mkdtemp makes it 0700: give the model folder a plain folder's mode
     old = None
     try:
         for name, data in files.items():
@@ -437,8 +451,9 @@ def check_variant_kinds(model: ObjectModel, kinds: Sequence[str]) -> None:
 
 
 def install_library_hook() -> bool:
-    """Teach ``synthleak.assets.library`` / ``variants`` about ``builder = "imported"`` at run time, until the
-    library applies the patch natively (then this is a no-op). Returns whether it patched anything.
+    """Teach ``synthleak.assets.library`` / ``variants`` about ``builder = "imported"`` at run time where the
+    library does not read imported models itself (it does: then this is a no-op). Returns whether it patched
+    anything.
 
     Effects: ``load_library`` also reads ``imported/*/*.toml``; ``build_model`` / ``ObjectModel.build`` and
     ``ObjectModel.material_texture`` use the stored meshes and textures; ``variant`` warns on ``shape``."""

@@ -1,4 +1,5 @@
-"""The object library: model definitions (``object_library/*.toml``) and their parametric builds.
+"""The object library: model definitions (``object_library/*.toml``, props in ``object_library/props/*.toml``)
+and their parametric builds.
 
 One TOML file per model (schema in ``object_library/README.md``)::
 
@@ -7,6 +8,7 @@ One TOML file per model (schema in ``object_library/README.md``)::
     builder = "chair_ladderback"       # a registered builder (synthleak.assets.builders)
     symmetry = "none"                  # none | 2 | 4 | z  (2-/4-fold about +z, or continuous about z)
     support = "floor"                  # floor | wall | ceiling | surface
+    role = "furniture"                 # optional: furniture (default) | prop (small clutter; props/*.toml)
     size = [0.46, 0.50, 0.92]          # full extents x, y, z in metres at default params
     scale_range = [0.9, 1.1]           # per-axis multiplicative scale range for variants
     colour_range = [0.08, 0.15, 0.15]  # optional: max |hue turns|, |saturation|, |value| shift
@@ -41,13 +43,19 @@ import numpy as np
 
 from synthleak.assets.builders import BUILDERS, PartBuilder, SupportSurface
 from synthleak.assets.builders.base import MaterialSlot
+from synthleak.assets.materials import get_sku
 from synthleak.assets.mesh import ObjectMesh
 from synthleak.assets.textures import TEXTURE_KINDS, make_texture
+from synthleak.errors import UnknownNameError
 from synthleak.paths import object_library_dir
 from synthleak.seeding import make_rng
 
 SYMMETRIES = ("none", "2", "4", "z")
 SUPPORTS = ("floor", "wall", "ceiling", "surface")
+ROLES = ("furniture", "prop")
+"""``furniture``: the objects a study attacks and places as its scene objects; ``prop``: small clutter
+(books, cushions, rugs, posters...) read from ``object_library/props/``."""
+PROPS_DIR = "props"
 TEXTURE_SEED = 0
 """Root seed of every model's textures (a model's look is fixed; variants recolour it)."""
 _MATERIAL_KEYS = {
@@ -67,6 +75,7 @@ _TOP_KEYS = {
     "builder",
     "symmetry",
     "support",
+    "role",
     "size",
     "scale_range",
     "colour_range",
@@ -94,7 +103,7 @@ class ParamRange:
 
 @dataclass(frozen=True)
 class ObjectModel:
-    """One furniture model of the library (a parsed TOML file)."""
+    """One model of the library (a parsed TOML file): a piece of furniture or a prop (``role``)."""
 
     model_id: str
     category: str
@@ -109,6 +118,7 @@ class ObjectModel:
     colour_range: tuple[float, float, float] = (0.08, 0.15, 0.15)
     description: str = ""
     texture_size: int = 512
+    role: str = "furniture"
 
     def default_params(self) -> dict[str, float]:
         return {k: float(v.default) for k, v in self.params.items()}
@@ -118,12 +128,14 @@ class ObjectModel:
         return build_model(self, params)[0]
 
     def material_texture(self, material: str) -> np.ndarray:
-        """The (cached, read-only) base texture of one material slot."""
+        """The (cached, read-only) base texture of one material slot (its shared SKU's, if it uses one)."""
         if self.builder == "imported":
             from synthleak.assets.import_store import imported_texture
 
             return imported_texture(self, material)
         spec = self.textures[material]
+        if spec.get("sku"):
+            return get_sku(spec["sku"]).texture()
         return _cached_texture(
             self.model_id,
             material,
@@ -172,7 +184,7 @@ def build_model(
     p.update(model.default_params())
     for k, v in (params or {}).items():
         if k not in model.params:
-            raise KeyError(
+            raise UnknownNameError(
                 f"model {model.model_id!r} has no shape parameter {k!r}; it has {sorted(model.params)}"
             )
         if v is not None:
@@ -250,6 +262,11 @@ def _parse_model(path: Path) -> ObjectModel:
     colour_range = _floats(path, "colour_range", data.get("colour_range", [0.08, 0.15, 0.15]), 3)
     if min(colour_range) < 0 or colour_range[0] > 0.5 or max(colour_range[1:]) > 1:
         raise _err(path, "colour_range", "need 0 <= hue <= 0.5 and 0 <= saturation, value <= 1")
+    role = data.get("role", "furniture")
+    if role not in ROLES:
+        raise _err(path, "role", f"{role!r} not in {ROLES}")
+    if path.parent.name == PROPS_DIR and role != "prop":
+        raise _err(path, "role", f'a model in {PROPS_DIR}/ must declare role = "prop" (got {role!r})')
     texture_size = data.get("texture_size", 512)
     if not isinstance(texture_size, int) or not 64 <= texture_size <= 1024:
         raise _err(path, "texture_size", f"expected an integer in [64, 1024], got {texture_size!r}")
@@ -345,23 +362,33 @@ def _parse_model(path: Path) -> ObjectModel:
         colour_range=colour_range,  # type: ignore[arg-type]
         description=str(data.get("description", "")),
         texture_size=texture_size,
+        role=role,
     )
 
 
 def load_library(directory: Path | None = None) -> dict[str, ObjectModel]:
-    """All models of ``directory`` (default: :func:`synthleak.paths.object_library_dir`), sorted by id.
+    """All models of ``directory`` (default: :func:`synthleak.paths.object_library_dir`): ``*.toml``,
+    ``props/*.toml`` and ``imported/*/*.toml``, sorted by id (ids unique over all of them).
 
     A bad file raises ``ValueError`` naming the file and the key."""
     d = Path(directory) if directory is not None else object_library_dir()
     if not d.is_dir():
         raise FileNotFoundError(f"object library folder {d} does not exist")
     models: dict[str, ObjectModel] = {}
-    for path in sorted(d.glob("*.toml")) + sorted(d.glob("imported/*/*.toml")):
+    paths = sorted(d.glob("*.toml")) + sorted(d.glob(f"{PROPS_DIR}/*.toml")) + sorted(d.glob("imported/*/*.toml"))
+    for path in paths:
         m = _parse_model(path)
         if m.model_id in models:
             raise _err(path, "id", f"duplicate id {m.model_id!r} (also in {models[m.model_id].source})")
         models[m.model_id] = m
     return dict(sorted(models.items()))
+
+
+def by_role(library: dict[str, ObjectModel], role: str) -> dict[str, ObjectModel]:
+    """The models of ``library`` with ``role`` (``"furniture"`` or ``"prop"``), in the library's order."""
+    if role not in ROLES:
+        raise ValueError(f"role: {role!r} not in {ROLES}")
+    return {k: m for k, m in library.items() if m.role == role}
 
 
 @functools.lru_cache(maxsize=8)
@@ -375,7 +402,7 @@ def get_model(model_id: str, library: dict[str, ObjectModel] | None = None) -> O
     lib = library if library is not None else _default_library(str(object_library_dir()))
     if model_id not in lib:
         close = difflib.get_close_matches(model_id, lib, n=5, cutoff=0.4)
-        raise KeyError(
+        raise UnknownNameError(
             f"unknown model {model_id!r}; close: {close or 'none'} ({len(lib)} models in the library)"
         )
     return lib[model_id]

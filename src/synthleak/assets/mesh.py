@@ -11,6 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+VARIANT_KINDS = ("colour", "scale", "shape")
+"""What a variant of a model may change (``synthleak.assets.variants``)."""
+
 
 @dataclass
 class TexturedPart:

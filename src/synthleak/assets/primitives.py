@@ -1,4 +1,5 @@
-"""Closed, textured mesh primitives: boxes, tapered blocks, cylinders, bars, tori, spheres, lathe profiles.
+"""Closed, textured mesh primitives: boxes, tapered blocks, cylinders, bars, tori, spheres, lathe profiles,
+swept tubes.
 
 Every function returns a :class:`~synthleak.assets.mesh.TexturedPart` whose triangles are counter-clockwise
 seen from outside (each primitive is a closed surface; its orientation is checked by its signed volume and
@@ -566,6 +567,68 @@ def extrude(
     pieces.append(_grid_mesh(P, S, texel_scale, "tile", f"{name}/ext/side"))
     part = _finish(name, pieces, texture, roughness, metallic)
     return _apply(part, rotation, centre)
+
+
+def tube(
+    name: str,
+    path: Sequence[Sequence[float]],
+    radius: float,
+    texture: np.ndarray,
+    segments: int = 8,
+    texel_scale: float = 1.0,
+    roughness: float = 0.6,
+    metallic: float = 0.0,
+) -> TexturedPart:
+    """A round tube swept along a polyline ``path`` (n >= 2 points), capped at both ends (mug and basket
+    handles). Cross-sections are perpendicular to the mean tangent at each point; their frame is carried
+    along the path by parallel transport, so a planar path keeps ring point 0 in its plane (``segments`` a
+    multiple of 4 puts ring points exactly in and across that plane). Chart: arc length along the path x arc
+    length around the tube."""
+    P = np.asarray(path, np.float64)
+    if P.ndim != 2 or P.shape[1] != 3 or len(P) < 2:
+        raise ValueError(f"tube {name!r}: path must be (n >= 2, 3), got shape {P.shape}")
+    seg = np.diff(P, axis=0)
+    seg_len = np.linalg.norm(seg, axis=1)
+    if np.any(seg_len <= 0):
+        raise ValueError(f"tube {name!r}: path has repeated points")
+    ts = seg / seg_len[:, None]
+    T = np.concatenate([ts[:1], ts[:-1] + ts[1:], ts[-1:]])
+    T /= np.linalg.norm(T, axis=1, keepdims=True)
+    # initial normal: in the path's plane when it has one (perpendicular to T[0], towards the bend)
+    bend = (P[-1] - P[0]) if len(P) > 2 else np.array([0.0, 0.0, 1.0])
+    n0 = bend - (bend @ T[0]) * T[0]
+    if np.linalg.norm(n0) < 1e-9:
+        ref = np.eye(3)[int(np.argmin(np.abs(T[0])))]
+        n0 = ref - (ref @ T[0]) * T[0]
+    N = [n0 / np.linalg.norm(n0)]
+    for i in range(1, len(P)):
+        axis = np.cross(T[i - 1], T[i])
+        s = float(np.linalg.norm(axis))
+        n = N[-1]
+        if s > 1e-12:
+            n = rotation_matrix(axis, float(np.arctan2(s, T[i - 1] @ T[i]))) @ n
+        n = n - (n @ T[i]) * T[i]
+        N.append(n / np.linalg.norm(n))
+    Nn = np.asarray(N)
+    B = np.cross(T, Nn)
+    a = np.linspace(0, 2 * np.pi, segments + 1)
+    ring = np.cos(a)[None, :, None] * Nn[:, None, :] + np.sin(a)[None, :, None] * B[:, None, :]
+    G = P[:, None, :] + radius * ring  # (n, segments + 1, 3)
+    arc = np.concatenate([[0.0], np.cumsum(seg_len)])
+    S = np.stack([arc[:, None].repeat(segments + 1, 1), (a * radius)[None, :].repeat(len(P), 0)], -1)
+    V, F, UV = _grid_mesh(G, S, texel_scale, "tile", f"{name}/tube")
+    pieces = [(V, F[:, ::-1], UV)]  # the grid's (along, around) order winds inwards
+    for ci, (i, sign) in enumerate(((0, -1), (len(P) - 1, 1))):  # end caps as fans, outward along -/+ T
+        Vc = np.concatenate([P[i][None], G[i, :-1]])
+        k = np.arange(segments)
+        Fc = np.stack([np.zeros(segments, np.int64), 1 + k, 1 + (k + 1) % segments], 1)
+        Fc = Fc if sign > 0 else Fc[:, ::-1]
+        f = np.asarray(_hash_fraction(name, "cap", ci))
+        span = max(2 * radius, texel_scale)
+        uvc = np.stack([np.concatenate([[0.0], np.cos(a[:-1])]), np.concatenate([[0.0], np.sin(a[:-1])])], 1)
+        uvc = (radius * (uvc + 1) + f * (span - 2 * radius)) / span
+        pieces.append((Vc, Fc, _UV_MARGIN + (1 - 2 * _UV_MARGIN) * uvc))
+    return _finish(name, pieces, texture, roughness, metallic)
 
 
 def merge_parts(name: str, parts: Sequence[TexturedPart]) -> TexturedPart:

@@ -26,11 +26,10 @@ import numpy as np
 
 from synthleak.assets.builders import SupportSurface
 from synthleak.assets.library import ObjectModel, build_model, get_model
-from synthleak.assets.mesh import ObjectMesh, TexturedPart
+from synthleak.assets.materials import model_skus, with_materials
+from synthleak.assets.mesh import VARIANT_KINDS, ObjectMesh, TexturedPart
 from synthleak.assets.textures import hsv_shift
 from synthleak.seeding import make_rng
-
-VARIANT_KINDS = ("colour", "scale", "shape")
 
 __all__ = ["VARIANT_KINDS", "SupportSurface", "Variant", "variant", "variant_from_record"]
 
@@ -95,8 +94,10 @@ class Variant:
         return self._built()[0].extents()
 
     def record(self) -> dict[str, Any]:
-        """Every parameter used, JSON-serialisable; :func:`variant_from_record` rebuilds it."""
-        return {
+        """Every parameter used, JSON-serialisable; :func:`variant_from_record` rebuilds it. ``materials``
+        (slot -> shared SKU id) is there only when the model uses catalogue SKUs."""
+        skus = model_skus(self.model)
+        return ({"materials": skus} if skus else {}) | {
             "model_id": self.model.model_id,
             "category": self.model.category,
             "seed": int(self.seed),
@@ -160,7 +161,7 @@ def variant(model: ObjectModel, seed: int, magnitude: float, kinds: Sequence[str
 
 def variant_from_record(record: dict[str, Any], library: dict[str, ObjectModel] | None = None) -> Variant:
     """Rebuild a :class:`Variant` from :meth:`Variant.record` (the stored parameters are used as they are)."""
-    model = get_model(record["model_id"], library)
+    model = with_materials(get_model(record["model_id"], library), record.get("materials", {}))
     return Variant(
         model=model,
         seed=int(record["seed"]),

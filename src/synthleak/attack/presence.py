@@ -68,6 +68,15 @@ def decide_presence(eps: float, eps_plus: float | None, eps_minus: float | None)
     return abs(eps - eps_plus) < abs(eps - eps_minus)
 
 
+def presence_margin(eps: float, eps_plus: float | None, eps_minus: float | None) -> float:
+    """The ε rule as a signed score: > 0 exactly when :func:`decide_presence` says present
+    (``|eps − eps⁻| − |eps − eps⁺|``, or ``eps − eps⁻`` without eps⁺; eps⁻ = 0 when missing)."""
+    eps_minus = 0.0 if eps_minus is None else float(eps_minus)
+    if eps_plus is None:
+        return float(eps) - eps_minus
+    return abs(float(eps) - eps_minus) - abs(float(eps) - float(eps_plus))
+
+
 def leave_one_scene_out(records: list[PresenceRecord]) -> list[PresenceDecision]:
     """Decide every record with eps⁺/eps⁻ = medians of the same object's eps over the other rooms.
 

@@ -8,7 +8,8 @@ fraction of genuine queries kept and the fraction of attacker queries rejected.
 
 A logged query is a dict: ``room``, ``tier``, ``genuine`` (bool), ``attacker_object`` (str or None),
 ``success_without_defense`` (bool), ``inlier_instance_counts`` ({instance_id: count}; JSON keys may be
-strings).
+strings), optionally ``closeup`` (bool: a genuine close-up of one object or a small group, which the paper
+found the defense cannot tell from an attacker's query).
 """
 
 from __future__ import annotations
@@ -63,7 +64,9 @@ def defense_tradeoff(
     Groups are the values of the ``by`` fields, plus one pooled group whose ``by`` fields are ``"all"``.
 
     Only queries with ``success_without_defense`` count (a query the server could not localize anyway is
-    neither kept nor rejected by the defense). A fraction with no query to count is NaN.
+    neither kept nor rejected by the defense). A fraction with no query to count is NaN. When any query has
+    ``closeup`` set, the rows also give the kept fractions of the genuine walk-through queries and of the
+    genuine close-ups separately.
     """
     for k, q in enumerate(queries):
         _check_query(k, q)
@@ -75,16 +78,18 @@ def defense_tradeoff(
     if by:
         keyed.append((tuple("all" for _ in by), localized))
     out = []
+    split_closeups = any("closeup" in q for q in queries)
     for key, group in keyed:
         genuine = [q for q in group if q["genuine"]]
         attacker = [q for q in group if not q["genuine"]]
+        close = [bool(q.get("closeup")) for q in genuine]
         for x in min_fractions:
             n_gen = [qualifying_instances(q["inlier_instance_counts"], x) for q in genuine]
             n_att = [qualifying_instances(q["inlier_instance_counts"], x) for q in attacker]
             for k in min_instances:
                 kept = sum(n >= k for n in n_gen)
                 rejected = sum(n < k for n in n_att)
-                out.append({
+                row = {
                     **dict(zip(by, key, strict=True)),
                     "min_fraction": float(x),
                     "min_instances": int(k),
@@ -92,5 +97,12 @@ def defense_tradeoff(
                     "n_attacker": len(attacker),
                     "genuine_kept": kept / len(genuine) if genuine else math.nan,
                     "attacker_rejected": rejected / len(attacker) if attacker else math.nan,
-                })
+                }
+                if split_closeups:
+                    for name, want in (("walkthrough", False), ("closeup", True)):
+                        counts = [n for n, c in zip(n_gen, close, strict=True) if c == want]
+                        row[f"n_genuine_{name}"] = len(counts)
+                        row[f"genuine_{name}_kept"] = (sum(n >= k for n in counts) / len(counts)
+                                                       if counts else math.nan)
+                out.append(row)
     return out

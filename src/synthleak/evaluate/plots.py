@@ -190,7 +190,8 @@ def plot_room_topdown(
 
 def plot_defense_tradeoff(tradeoff_rows: Sequence[dict], out: str | Path, group_field: str = "tier") -> Path:
     """Paper Fig. 6: genuine queries kept vs attacker queries rejected, a line per min fraction X, points
-    per min-instances k (annotated); one panel per value of ``group_field``.
+    per min-instances k (annotated); one panel per value of ``group_field``. Rows with
+    ``genuine_closeup_kept`` add a dashed line per X: the genuine close-ups kept.
 
     ``tradeoff_rows``: output of :func:`synthleak.evaluate.defense_sweep.defense_tradeoff`.
     """
@@ -207,6 +208,9 @@ def plot_defense_tradeoff(tradeoff_rows: Sequence[dict], out: str | Path, group_
             ys = [r["genuine_kept"] for r in line]
             ax.plot(xs, ys, "-", marker=_MARKERS[x_idx % len(_MARKERS)], color=_colour(x_idx), ms=4,
                     label=f"X = {100 * frac:g}%")
+            if any(math.isfinite(r.get("genuine_closeup_kept", math.nan)) for r in line):
+                ax.plot(xs, [r["genuine_closeup_kept"] for r in line], "--", marker=_MARKERS[x_idx % len(_MARKERS)],
+                        color=_colour(x_idx), ms=3, mfc="none", alpha=0.8, label=f"X = {100 * frac:g}%, close-ups")
             for r, px, py in zip(line, xs, ys, strict=True):
                 if math.isfinite(px) and math.isfinite(py):
                     ax.annotate(str(r["min_instances"]), (px, py), fontsize=6, xytext=(2, 2),
@@ -285,4 +289,34 @@ def plot_leakage_vs_magnitude(
             ax.grid(alpha=0.3)
             if m_idx == 0 and lines:
                 ax.legend(fontsize=6)
+    return _save(fig, out)
+
+
+def plot_leakage_vs_world(rows: Sequence[dict], out: str | Path, aligner: str,
+                          thresholds: tuple[float, float]) -> Path:
+    """One panel per swept knob: precision (solid) and recall (dashed) against its value, a colour per tier,
+    for one aligner and threshold pair."""
+    from synthleak.evaluate.world_sweep import WORLD_PARAMS, leakage_vs_world
+
+    stats = [s for s in leakage_vs_world(rows)
+             if s["aligner"] == aligner and (s["delta_r_deg"], s["delta_t_m"]) == tuple(thresholds)]
+    params = [p for p in WORLD_PARAMS if any(s["sweep_param"] == p for s in stats)] or ["–"]
+    tiers = _sorted(s["tier"] for s in stats)
+    fig = Figure(figsize=(4.6 * len(params), 3.6), layout="constrained")
+    for p_idx, param in enumerate(params):
+        ax = fig.add_subplot(1, len(params), p_idx + 1)
+        for t_idx, tier in enumerate(tiers):
+            pts = sorted((s["sweep_value"], s["precision"], s["recall"]) for s in stats
+                         if s["sweep_param"] == param and s["tier"] == tier)
+            xs = [p[0] for p in pts]
+            marker = _MARKERS[t_idx % len(_MARKERS)]
+            ax.plot(xs, [p[1] for p in pts], "-", marker=marker, color=_colour(t_idx), ms=4, label=f"{tier} P")
+            ax.plot(xs, [p[2] for p in pts], "--", marker=marker, color=_colour(t_idx), ms=4, mfc="none",
+                    label=f"{tier} R")
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_xlabel(param)
+        ax.set_title(f"presence vs {param} ({aligner}, {thresholds[0]:g}°/{thresholds[1]:g} m)", fontsize=9)
+        ax.grid(alpha=0.3)
+        if tiers:
+            ax.legend(fontsize=7)
     return _save(fig, out)

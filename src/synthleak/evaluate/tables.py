@@ -27,7 +27,9 @@ from synthleak.evaluate.metrics import DEFAULT_THRESHOLDS
 COLUMNS: tuple[str, ...] = (
     "room", "object", "model_id", "category", "tier", "aligner", "delta_r_deg", "delta_t_m", "present_gt",
     "eps", "decision", "n_queries", "n_localized", "n_retrieved_target", "n_target_top", "map_points_on_target",
-    "rot_err_deg", "trans_err_m", "iou3d", "scene_from_object_est", "magnitude", "kind",
+    "absent_kind", "n_lookalike_top", "rot_err_deg", "trans_err_m", "iou3d", "scene_from_object_est", "magnitude",
+    "kind", "decision_eps", "decision_clf", "clf_score", "clf_fallback", "second_eps", "rot_spread", "trans_spread",
+    "disagree_rot_deg", "disagree_trans_m",
 )
 """Stable column order of the results files; extra keys follow, sorted."""
 
@@ -49,7 +51,7 @@ def sort_key(value: Any) -> tuple:
     return (1, 0.0, str(value))
 
 
-def _group(rows: Iterable[dict], fields: Sequence[str]) -> dict[tuple, list[dict]]:
+def group_rows(rows: Iterable[dict], fields: Sequence[str]) -> dict[tuple, list[dict]]:
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for k, row in enumerate(rows):
         missing = [f for f in fields if f not in row]
@@ -86,17 +88,37 @@ def precision_recall(rows: Sequence[dict]) -> dict[str, float | int]:
 # --------------------------------------------------------------------------------------------- presence
 
 
-def apply_presence_decisions(rows: Sequence[dict]) -> list[dict]:
-    """Copies of ``rows`` with ``decision`` set by leave-one-scene-out within each attack configuration."""
+PRESENCE_RULES = ("eps", "classifier")
+"""``attack.presence``: the paper's ε rule or the classifier of :mod:`synthleak.attack.presence_classifier`."""
+
+
+def apply_presence_decisions(rows: Sequence[dict], rule: str = "eps") -> list[dict]:
+    """Copies of ``rows`` with the presence decisions of leave-one-scene-out within each attack configuration.
+
+    ``decision_eps`` is the paper's ε rule (with ``eps_plus`` / ``eps_minus``); when the rows carry the
+    attacker-side trial features, ``decision_clf`` / ``clf_score`` / ``clf_fallback`` are the classifier's.
+    ``decision`` is the ``rule``'s (``classifier`` needs the features)."""
+    if rule not in PRESENCE_RULES:
+        raise ValueError(f"attack.presence: unknown rule {rule!r} (known: {', '.join(PRESENCE_RULES)})")
     out = [dict(r) for r in rows]
-    for group in _group(out, CONFIG_KEYS).values():
+    for group in group_rows(out, CONFIG_KEYS).values():
         records = [
             PresenceRecord(r["room"], r["object"], float(r["eps"]), bool(r["present_gt"])) for r in group
         ]
         for row, dec in zip(group, leave_one_scene_out(records), strict=True):
-            row["decision"] = dec.decision
+            row["decision"] = row["decision_eps"] = dec.decision
             row["eps_plus"] = dec.eps_plus
             row["eps_minus"] = dec.eps_minus
+    from synthleak.attack.presence_classifier import classifier_decisions, has_features
+
+    if has_features(out):
+        for row, clf in zip(out, classifier_decisions(out, [r["decision_eps"] for r in out]), strict=True):
+            row.update(clf)
+            if rule == "classifier":
+                row["decision"] = clf["decision_clf"]
+    elif rule == "classifier":
+        raise ValueError("attack.presence = 'classifier': the rows carry no trial features "
+                         "(synthleak.attack.presence_features)")
     return out
 
 
@@ -112,9 +134,9 @@ def presence_pr_per_object(rows: Sequence[dict]) -> list[dict]:
 
 def _pr_by(rows: Sequence[dict], field: str) -> list[dict]:
     out = []
-    for key, group in _group(rows, CONFIG_KEYS).items():
+    for key, group in group_rows(rows, CONFIG_KEYS).items():
         base = dict(zip(CONFIG_KEYS, key, strict=True))
-        for (name,), sub in _group(group, [field]).items():
+        for (name,), sub in group_rows(group, [field]).items():
             out.append({**base, field: name, **precision_recall(sub)})
         out.append({**base, field: "all", **precision_recall(group)})
     return out
@@ -127,26 +149,25 @@ def random_guess_precision(rows: Sequence[dict]) -> float:
 
 
 def _pr_table(rows: Sequence[dict], field: str, title: str) -> str:
-    """One markdown table per (aligner, magnitude, kind): rows = ``field``, columns = tier x thresholds."""
+    """One markdown table per (aligner, magnitude, kind, tier): rows = ``field``, columns = thresholds x P/R."""
     blocks = []
-    for (aligner, magnitude, kind), sec_rows in _group(rows, ["aligner", "magnitude", "kind"]).items():
-        tiers = sorted({r["tier"] for r in sec_rows}, key=sort_key)
+    sections = group_rows(rows, ["aligner", "magnitude", "kind", "tier"])
+    for (aligner, magnitude, kind, tier), sec_rows in sections.items():
         thresholds = sorted({(r["delta_r_deg"], r["delta_t_m"]) for r in sec_rows})
         stats = {}
         for r in _pr_by(sec_rows, field):
-            stats[(r[field], r["tier"], r["delta_r_deg"], r["delta_t_m"])] = r
+            stats[(r[field], r["delta_r_deg"], r["delta_t_m"])] = r
         names = sorted({r[field] for r in sec_rows}, key=sort_key) + ["all"]
-        heading = f"**{title}** — aligner `{aligner}`"
+        heading = f"**{title}** — tier `{tier}`, aligner `{aligner}`"
         if magnitude is not None or kind is not None:
             heading += f", variant magnitude {magnitude}, kind {kind}"
-        cols = [f"{t} {_thr_label(*th)} {pr}" for t in tiers for th in thresholds for pr in ("P", "R")]
+        cols = [f"{_thr_label(*th)} {pr}" for th in thresholds for pr in ("P", "R")]
         lines = [heading, "", "| " + " | ".join([field, *cols]) + " |", "|" + "---|" * (len(cols) + 1)]
         for name in names:
             cells = []
-            for t in tiers:
-                for th in thresholds:
-                    s = stats.get((name, t, *th))
-                    cells += [_fmt(s["precision"]), _fmt(s["recall"])] if s else ["–", "–"]
+            for th in thresholds:
+                s = stats.get((name, *th))
+                cells += [_fmt(s["precision"]), _fmt(s["recall"])] if s else ["–", "–"]
             lines.append("| " + " | ".join([str(name), *cells]) + " |")
         lines += ["", f"Random-guess precision: {_fmt(random_guess_precision(sec_rows))}"]
         blocks.append("\n".join(lines))
@@ -185,7 +206,7 @@ def placement_stats(
     """
     out = []
     chosen = [r for r in rows if r["present_gt"] and (r["decision"] or not decided_only)]
-    for key, group in _group(chosen, CONFIG_KEYS).items():
+    for key, group in group_rows(chosen, CONFIG_KEYS).items():
         rot = np.array([_finite_or(r.get("rot_err_deg"), math.inf) for r in group])
         trans = np.array([_finite_or(r.get("trans_err_m"), math.inf) for r in group])
         iou = np.array([_finite_or(r.get("iou3d"), 0.0) for r in group])
@@ -262,7 +283,7 @@ def recall_funnel(rows: Sequence[dict]) -> list[dict[str, Any]]:
     first = main[0]
     config = (first["aligner"], first["delta_r_deg"], first["delta_t_m"])
     out = []
-    for (tier,), group in _group(main, ["tier"]).items():
+    for (tier,), group in group_rows(main, ["tier"]).items():
         pairs = [r for r in group if (r["aligner"], r["delta_r_deg"], r["delta_t_m"]) == config]
         points = [r.get("map_points_on_target") for r in pairs]
         out.append({
@@ -355,3 +376,56 @@ def read_results(path: str | Path) -> list[dict]:
             if col in row and row[col] is None and col != "magnitude":
                 row[col] = math.nan
     return rows
+
+
+# --------------------------------------------------------------------------------------------- presence rules
+
+
+def _f1(precision: float, recall: float) -> float:
+    if math.isnan(recall) or precision + recall == 0:
+        return math.nan if math.isnan(recall) else 0.0
+    return 2 * precision * recall / (precision + recall)
+
+
+def presence_rule_comparison(rows: Sequence[dict]) -> list[dict[str, Any]]:
+    """Per attack configuration (variant sweeps left out): P, R and F1 of the ε rule (``decision_eps``) and of
+    the classifier (``decision_clf``) on the same held-out rows, and which wins on F1 (``tie`` if equal)."""
+    main = [r for r in rows if r.get("magnitude") is None and "decision_clf" in r]
+    out = []
+    for key, group in group_rows(main, ["tier", "aligner", "delta_r_deg", "delta_t_m"]).items():
+        row: dict[str, Any] = dict(zip(("tier", "aligner", "delta_r_deg", "delta_t_m"), key, strict=True))
+        for name, column in (("eps", "decision_eps"), ("clf", "decision_clf")):
+            pr = precision_recall([{**r, "decision": r[column]} for r in group])
+            row |= {f"P {name}": pr["precision"], f"R {name}": pr["recall"],
+                    f"F1 {name}": _f1(pr["precision"], pr["recall"]), f"TP/FP {name}": f"{pr['tp']}/{pr['fp']}"}
+        row["n_pairs"] = len(group)
+        row["fallbacks"] = sum(1 for r in group if r.get("clf_fallback"))
+        f_eps, f_clf = row["F1 eps"], row["F1 clf"]
+        row["wins"] = ("tie" if f_eps == f_clf or (math.isnan(f_eps) and math.isnan(f_clf))
+                       else "classifier" if f_clf > f_eps else "eps")
+        out.append(row)
+    return out
+
+
+def presence_rules_markdown(rows: Sequence[dict], rule: str = "eps") -> str:
+    """Report section: :func:`presence_rule_comparison` as a table (empty without classifier decisions)."""
+    table = presence_rule_comparison(rows)
+    if not table:
+        return ""
+    head = ["tier", "aligner", "δr, δt", "P ε", "R ε", "F1 ε", "TP/FP ε", "P clf", "R clf", "F1 clf", "TP/FP clf",
+            "pairs", "fallbacks", "wins"]
+    lines = ["## Presence: the paper's ε rule against a classifier (held-out rooms)\n",
+             "Both decide each room from the other rooms only (leave-one-scene-out): the ε rule with per-object "
+             "ε⁺/ε⁻ medians, the classifier (logistic regression, `synthleak.attack.presence_classifier`) from "
+             "attacker-side features: ε at each threshold pair, share of queries localized, second-best hypothesis, "
+             "inlier residual spread, placement agreement across threshold pairs, the ε rule's margin. "
+             "`fallbacks`: rooms whose training rooms hold one class (ε rule kept). The `decision` column of the "
+             f"results uses `{rule}` (`[attack] presence`).\n",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in table:
+        cells = [r["tier"], r["aligner"], _thr_label(r["delta_r_deg"], r["delta_t_m"]),
+                 _fmt(r["P eps"]), _fmt(r["R eps"]), _fmt(r["F1 eps"]), r["TP/FP eps"],
+                 _fmt(r["P clf"]), _fmt(r["R clf"]), _fmt(r["F1 clf"]), r["TP/FP clf"],
+                 str(r["n_pairs"]), str(r["fallbacks"]), r["wins"]]
+        lines.append("| " + " | ".join(map(str, cells)) + " |")
+    return "\n".join(lines) + "\n"

@@ -4,7 +4,8 @@ Any stage :func:`synthleak.scene.usd_io.read_render_scene` reads works (foreign 
 are the convex hulls of each instance's world-space vertices seen from above (metres, +z up). Shell pieces
 are drawn grey (a thin horizontal piece low in the room is the floor, one high up the ceiling, left out);
 objects in their palette colour (:func:`synthleak.inspect.contact_sheet.id_colour`) with their id and an
-arrow along their canonical front (+y). With ``dataset_sequence`` the camera centres of that sequence are
+arrow along their canonical front (+y); distractors (look-alikes that are never attacker objects) dashed,
+clutter props lighter with their id only. With ``dataset_sequence`` the camera centres of that sequence are
 drawn as a path with viewing directions (attacker sequences are mapped from the target's frame to the
 world). Rendering is matplotlib Agg with fixed size and no timestamp metadata (deterministic bytes).
 """
@@ -84,6 +85,7 @@ def plan_view(stage_path: Path, out: Path, dataset_sequence: Path | None = None)
 
     from synthleak.inspect.contact_sheet import id_colour
     from synthleak.render.pipeline import load_stage
+    from synthleak.scene.plan import FIRST_DISTRACTOR_ID, FIRST_PROP_ID
 
     stage_path = Path(stage_path)
     scene = load_stage(stage_path)
@@ -108,10 +110,16 @@ def plan_view(stage_path: Path, out: Path, dataset_sequence: Path | None = None)
         )
     for iid in objects:
         hull, _, _ = prints[iid]
-        colour = tuple(c / 255 for c in id_colour(iid))
-        ax.add_patch(Polygon(hull, closed=True, facecolor=(*colour, 0.55), edgecolor=colour, lw=1.2, zorder=4))
         info = scene.instances.get(iid)
+        prop = info is not None and info.role == "prop"
+        colour = tuple(c / 255 for c in id_colour(iid))
+        ax.add_patch(Polygon(hull, closed=True, facecolor=(*colour, 0.3 if prop else 0.55), edgecolor=colour,
+                             lw=0.6 if prop else 1.2, zorder=4, ls="--" if FIRST_DISTRACTOR_ID <= iid < FIRST_PROP_ID
+                             else "-"))
         centre = hull.mean(axis=0)
+        if prop:  # clutter: the id only, small, so the furniture labels stay readable
+            ax.text(*centre, str(iid), fontsize=4, ha="center", va="center", zorder=6, color=(0.3, 0.3, 0.3))
+            continue
         label = f"{iid}" + (f" {info.model_id}" if info is not None and info.model_id else "")
         ax.text(*centre, label, fontsize=7, ha="center", va="center", zorder=6)
         if info is not None:

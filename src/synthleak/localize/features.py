@@ -13,6 +13,8 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from synthleak.errors import SynthleakError
+
 
 @dataclass
 class Features:
@@ -36,7 +38,7 @@ class Features:
                         None if self.scores is None else self.scores[index], self.image_size)
 
 
-class MissingFeatureError(RuntimeError):
+class MissingFeatureError(SynthleakError, RuntimeError):
     """The installed libraries do not provide a tier's detector."""
 
 
@@ -53,6 +55,10 @@ def to_gray(rgb: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
 
 
+SIFT_DIM = 128
+"""SIFT descriptor length (float32)."""
+
+
 class SiftExtractor:
     """COLMAP SIFT (pycolmap, CPU), L1-root normalised float descriptors, single threaded (deterministic)."""
 
@@ -67,6 +73,8 @@ class SiftExtractor:
     def __call__(self, rgb: np.ndarray) -> Features:
         keypoints, descriptors = self._extractor.extract_from_uint8_array(to_gray(rgb))
         kp = np.array([[k.x, k.y] for k in keypoints], dtype=np.float64).reshape(-1, 2)
+        if not len(kp):  # a blank image: no keypoint, and an empty descriptor matrix of unknown width
+            return Features(kp, np.zeros((0, SIFT_DIM), np.float32))
         desc = np.asarray(descriptors.data, dtype=np.float32).reshape(len(kp), -1)
         norms = np.linalg.norm(desc, axis=1, keepdims=True)
         return Features(kp, desc / np.maximum(norms, 1e-12))
@@ -93,8 +101,9 @@ class OpenCVExtractor:
 
     def __call__(self, rgb: np.ndarray) -> Features:
         keypoints, descriptors = self._detector.detectAndCompute(to_gray(rgb), None)
-        if descriptors is None or not keypoints:
-            return Features(np.zeros((0, 2)), np.zeros((0, 32), np.uint8), binary=True)
+        if descriptors is None or not keypoints:  # a blank image
+            return Features(np.zeros((0, 2)), np.zeros((0, self._detector.descriptorSize()), np.uint8), binary=True,
+                            scores=np.zeros(0))
         response = np.array([k.response for k in keypoints])
         order = np.argsort(-response, kind="stable")[: self.max_keypoints]
         kp = np.array([keypoints[i].pt for i in order], dtype=np.float64) + 0.5

@@ -2,20 +2,19 @@
 
 from __future__ import annotations
 
-import io
 import json
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import pycolmap
-from PIL import Image
 
 from synthleak.config import LocalizeConfig
 from synthleak.localize.defense import DefenseDecision, DefensePolicy
 from synthleak.localize.features import Features
+from synthleak.localize.images import MAX_QUERY_PIXELS, InvalidImageError, decode_image, fit_to_pixels
 from synthleak.localize.retrieval import RETRIEVAL_METHODS, BowIndex
 from synthleak.localize.store import MapData, read_map
 from synthleak.localize.tiers import Tier, get_tier
@@ -38,30 +37,9 @@ class LocalizationResult:
     """Names of the map images the query was matched against (the retrieval's top k, or all), sorted."""
     timings: dict[str, float] = field(default_factory=dict)
     """Seconds: ``features``, ``retrieval``, ``matching`` (retrieval + matching), ``pnp``, ``total``."""
-
-
-class InvalidImageError(ValueError):
-    """Query image bytes/array that cannot be used."""
-
-
-def decode_image(image: np.ndarray | bytes) -> np.ndarray:
-    """(H, W, 3) uint8 RGB from an array (grey, RGB or RGBA) or encoded bytes (PNG, JPEG, ...)."""
-    if isinstance(image, bytes | bytearray | memoryview):
-        if not len(image):
-            raise InvalidImageError("empty image")
-        try:
-            with Image.open(io.BytesIO(bytes(image))) as im:
-                return np.asarray(im.convert("RGB"))
-        except (OSError, ValueError, Image.DecompressionBombError) as exc:
-            raise InvalidImageError(f"not a decodable image ({exc.__class__.__name__})") from exc
-    arr = np.asarray(image)
-    if arr.dtype != np.uint8:
-        raise InvalidImageError(f"image array must be uint8, got {arr.dtype}")
-    if arr.ndim == 2:
-        arr = np.repeat(arr[..., None], 3, axis=2)
-    if arr.ndim != 3 or arr.shape[2] not in (3, 4):
-        raise InvalidImageError(f"image array must be (H, W[, 3|4]), got shape {arr.shape}")
-    return np.ascontiguousarray(arr[..., :3])
+    withheld_cam_from_world: np.ndarray | None = None
+    """The pose PnP found for a query the enabled defense refused (server-side only: the HTTP answer is
+    ``{"success": false}``); studies log it to attack the same queries with and without the defense."""
 
 
 class Localizer:
@@ -92,6 +70,7 @@ class Localizer:
             keep = np.nonzero(idx >= 0)[0]
             self._db.append((f.subset(keep), idx[keep]))
         self._bow: BowIndex | None = None
+        self.max_query_pixels = MAX_QUERY_PIXELS
 
     @classmethod
     def load(
@@ -107,7 +86,7 @@ class Localizer:
         data = read_map(map_dir)
         loc = cls(data, get_tier(data.meta["tier"]), config or LocalizeConfig(), defense, weights_dir,
                   decision_log)
-        if loc.config.retrieval == "bow":
+        if loc.config.retrieval == "bow" or loc.tier.learned_matcher:  # a learned matcher: top_k images only
             with np.load(map_dir / "bow.npz") as arrays:
                 loc._bow = BowIndex.from_arrays(arrays)
         return loc
@@ -124,13 +103,19 @@ class Localizer:
         return np.sort(self._bow.query(query, self.config.top_k))
 
     def localize(self, image: np.ndarray | bytes, camera: Camera | None = None) -> LocalizationResult:
-        """Pose of ``image`` (RGB array or encoded bytes) or not localized."""
+        """Pose of ``image`` (RGB array or encoded bytes) or not localized.
+
+        Encoded images over :data:`~synthleak.localize.images.MAX_QUERY_PIXELS` are refused from their
+        header (:class:`~synthleak.localize.images.ImageTooLargeError`); an image with more pixels than the
+        map's images is downscaled to their pixel count with its intrinsics scaled, so no query costs more
+        than a map image to extract (:func:`~synthleak.localize.images.fit_to_pixels`)."""
         t0 = time.perf_counter()
-        rgb = decode_image(image)
+        rgb = decode_image(image, self.max_query_pixels)
         camera = camera or self.camera
         if (rgb.shape[1], rgb.shape[0]) != (camera.width, camera.height):
             raise InvalidImageError(f"image is {rgb.shape[1]}x{rgb.shape[0]} but the camera is "
                                     f"{camera.width}x{camera.height}")
+        rgb, camera = fit_to_pixels(rgb, camera, self.camera.width * self.camera.height)
         query = self.extractor(rgb)
         t1 = time.perf_counter()
         result = self.localize_features(query, camera)
@@ -143,7 +128,12 @@ class Localizer:
         result as :meth:`localize` on the image they came from, without extracting them again.
         ``candidates`` (map image indices) replaces the retrieval (benchmarks compare retrievals with it)."""
         camera = camera or self.camera
+        if query.image_size == (0, 0):
+            query = replace(query, image_size=(camera.width, camera.height))
         t1 = time.perf_counter()
+        if not len(query):  # a blank image: nothing to match
+            return LocalizationResult(False, timings={"features": 0.0, "retrieval": 0.0, "matching": 0.0,
+                                                      "pnp": 0.0, "total": 0.0})
         if candidates is None:
             candidates = self.candidates(query)
         t_retrieval = time.perf_counter() - t1
@@ -188,18 +178,21 @@ class Localizer:
         pose[:3] = est["cam_from_world"].matrix()
         success = num_inliers >= self.min_inliers
         decision = self.defense.apply(counts_sorted) if success else None
+        withheld = None
         if decision is not None:
             self._log(decision, num_inliers)
             if self.defense.enabled and not decision.accepted:
-                success = False
-        return LocalizationResult(
-            success, pose if success else None, num_inliers, len(corr), counts_sorted, decision
-        )
+                success, withheld = False, pose
+        return LocalizationResult(success, pose if success else None, num_inliers, len(corr), counts_sorted,
+                                  decision, withheld_cam_from_world=withheld)
 
     def _log(self, decision: DefenseDecision, num_inliers: int) -> None:
-        if self.decision_log is None:
-            return
-        record = {"time": time.time(), "enabled": self.defense.enabled, "num_inliers": num_inliers,
-                  **decision.to_json()}
-        with open(self.decision_log, "a") as fh:
-            fh.write(json.dumps(record) + "\n")
+        if self.decision_log is not None:
+            log_decision(self.decision_log, self.defense, decision, num_inliers)
+
+
+def log_decision(path: Path, defense: DefensePolicy, decision: DefenseDecision, num_inliers: int) -> None:
+    """Append one defense decision (with its inlier counts) to the JSONL decision log at ``path``."""
+    record = {"time": time.time(), "enabled": defense.enabled, "num_inliers": num_inliers, **decision.to_json()}
+    with open(path, "a") as fh:
+        fh.write(json.dumps(record) + "\n")

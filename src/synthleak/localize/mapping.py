@@ -11,6 +11,7 @@ import hashlib
 import json
 import shutil
 from collections import Counter
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -62,10 +63,14 @@ def _retrieval_meta(config: LocalizeConfig) -> dict:
     return {"method": config.retrieval, "top_k": config.top_k, "bow": bow_params(config).to_json()}
 
 
-def _map_settings(tier: str, config: LocalizeConfig) -> dict:
-    return {"tier": tier, "max_keypoints": config.max_keypoints, "pairs_per_image": config.pairs_per_image,
-            "bow": bow_params(config).to_json(), "visible_min_fraction": VISIBLE_MIN_FRACTION,
-            "format_version": FORMAT_VERSION}
+def _map_settings(tier: str, config: LocalizeConfig, weights: dict) -> dict:
+    settings = {"tier": tier, "max_keypoints": config.max_keypoints, "pairs_per_image": config.pairs_per_image,
+                "bow": bow_params(config).to_json(), "visible_min_fraction": VISIBLE_MIN_FRACTION,
+                "format_version": FORMAT_VERSION}
+    if weights:  # learned tiers: new weights or a new definition (thresholds, budget), new map
+        settings["weights_sha256"] = {k: v["sha256"] for k, v in weights.items()}
+        settings["tier_definition"] = json.loads(json.dumps(asdict(get_tier(tier))))  # as map.json reads back
+    return settings
 
 
 def build_map(
@@ -78,7 +83,8 @@ def build_map(
 ) -> Path:
     """Build (or reuse, if ``map.json`` matches the inputs' hash and settings) the map of a sequence.
 
-    Returns ``out_dir``. ``weights_dir`` is only used by the ``disk-lightglue`` tier.
+    Returns ``out_dir``. ``weights_dir`` (learned tiers only) is searched for weight files before the installed
+    weight packages; ``map.json`` records each weight file's sha256 (a map is rebuilt when they change).
     """
     config = config or LocalizeConfig()
     sequence_dir, out_dir = Path(sequence_dir), Path(out_dir)
@@ -87,7 +93,8 @@ def build_map(
     if len(seq.map_frames) < 2:
         raise SequenceError(f"{sequence_dir / 'split.json'}: field 'map' needs at least 2 frames")
     digest = inputs_hash(seq)
-    settings = _map_settings(tier, config)
+    weights = tier_spec.weights_record(weights_dir)
+    settings = _map_settings(tier, config, weights)
     meta_path = out_dir / "map.json"
     if meta_path.is_file():
         old = json.loads(meta_path.read_text())
@@ -159,6 +166,8 @@ def build_map(
         "inputs_sha256": digest,
         "settings": settings,
         "retrieval": _retrieval_meta(config),
+        "keypoint_budget": tier_spec.keypoint_budget(config.max_keypoints),
+        "weights": weights,
         "camera": camera_to_json(seq.camera),
         "num_images": len(names),
         "num_pairs": len(pairs),

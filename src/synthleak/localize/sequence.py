@@ -12,11 +12,12 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from synthleak.errors import SynthleakError
 from synthleak.render.base import Camera
 from synthleak.render.dataset import DatasetError, load_sequence
 
 
-class SequenceError(ValueError):
+class SequenceError(SynthleakError, ValueError):
     """A sequence folder that cannot be used; the message names the file and the field."""
 
 

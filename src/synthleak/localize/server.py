@@ -1,50 +1,98 @@
 """HTTP localization service (FastAPI, loopback by default).
 
-``POST /localize``: the request body is the encoded image itself (PNG/JPEG/..., any Content-Type, e.g.
-``image/png``), optional intrinsics as query parameters ``fx, fy, cx, cy`` (all four or none) and
-``width, height`` (must equal the image size if given). Without intrinsics the map's camera is used and
-the image must have the map's size. The response is exactly
+``POST /localize``: the request body is the encoded image itself (PNG/JPEG/..., 8 or 16 bits per sample, any
+Content-Type, e.g. ``image/png``), optional intrinsics as query parameters ``fx, fy, cx, cy`` (all four or
+none) and ``width, height`` (must equal the image size if given). Without intrinsics the map's camera is used
+and the image must have the map's size. The response is exactly
 ``{"success": true, "cam_from_world": {"rotation": [qw, qx, qy, qz], "translation": [x, y, z]}}`` or
-``{"success": false}``. Bad input gets a 4xx with ``{"detail": "<message>"}``: 400 (empty, undecodable,
-too small, size mismatch), 413 (body over ``max_upload_bytes``, rejected from Content-Length or while
-streaming), 422 (bad intrinsics). ``GET /health`` -> ``{"status": "ok"}``.
+``{"success": false}`` (also for an image without features, such as a blank one). Bad input gets a 4xx with
+``{"detail": "<message>"}``: 400 (empty, undecodable, too small, size mismatch), 408 (the body did not arrive
+in time: nothing for ``body_idle_timeout`` seconds, or not all of it within ``body_timeout``), 413 (body over
+``max_upload_bytes``, rejected from Content-Length or while streaming; or an image header declaring more than
+``MAX_QUERY_PIXELS``, refused before decoding), 422 (bad intrinsics). ``GET /health`` -> ``{"status": "ok"}``.
+
+Work per query is bounded (see :mod:`synthleak.localize.images`): images larger than the map's are
+downscaled to its pixel count with scaled intrinsics. :func:`serve` runs queries in a
+:class:`~synthleak.localize.pool.LocalizerPool` of ``workers`` processes, so they run in parallel and the
+event loop (``/health``, uploads) never waits for one. A client that disconnects mid-upload is logged as one
+line.
 """
 
 from __future__ import annotations
 
-import io
+import asyncio
+import logging
 import math
+import os
 import threading
+import time
 from pathlib import Path
+from typing import Protocol
 
 from fastapi import FastAPI, HTTPException, Request
-from PIL import Image
+from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
+from starlette.requests import ClientDisconnect
 
 from synthleak.config import LocalizeConfig
 from synthleak.geometry.poses import quat_wxyz_from_matrix
 from synthleak.localize.defense import DefensePolicy
-from synthleak.localize.localizer import InvalidImageError, LocalizationResult, Localizer
+from synthleak.localize.images import MAX_QUERY_PIXELS, ImageTooLargeError, InvalidImageError, read_size
+from synthleak.localize.localizer import LocalizationResult, Localizer
+from synthleak.localize.pool import LocalizerPool, WorkerCrashedError
 from synthleak.render.base import Camera
 
-MAX_UPLOAD_BYTES = 100 * 1024 * 1024
+MAX_UPLOAD_BYTES = 32 * 1024 * 1024
 MIN_IMAGE_SIDE = 16
-MAX_IMAGE_PIXELS = 40_000_000
+BODY_IDLE_TIMEOUT_S = 10.0
+"""Seconds an upload may send nothing before it is answered 408 (a Content-Length larger than the body)."""
+BODY_TIMEOUT_S = 60.0
+"""Seconds the whole body may take."""
+MAX_CONNECTIONS = 64
+"""uvicorn's ``limit_concurrency``: more connections at once are answered 503, so upload buffers stay below
+``MAX_CONNECTIONS * max_upload_bytes``."""
+
+logger = logging.getLogger("synthleak.server")
 
 
-def _check_size(data: bytes) -> tuple[int, int]:
-    """(width, height) from the image header; 400 if unreadable or out of bounds."""
+class Backend(Protocol):
+    """What the app needs: the map camera and ``await localize(data, camera)``."""
+
+    camera: Camera
+    max_query_pixels: int
+
+    async def localize(self, data: bytes, camera: Camera | None) -> LocalizationResult: ...
+
+
+class InProcessBackend:
+    """One :class:`Localizer` in this process, calls serialised in a thread (tests, embedding). pycolmap's SIFT
+    holds the GIL, so the event loop stalls while it runs: :func:`serve` uses a :class:`LocalizerPool`."""
+
+    def __init__(self, localizer: Localizer) -> None:
+        self.localizer = localizer
+        self.camera = localizer.camera
+        self.max_query_pixels = localizer.max_query_pixels
+        self._lock = threading.Lock()
+
+    def _run(self, data: bytes, camera: Camera | None) -> LocalizationResult:
+        with self._lock:
+            return self.localizer.localize(data, camera)
+
+    async def localize(self, data: bytes, camera: Camera | None) -> LocalizationResult:
+        return await run_in_threadpool(self._run, data, camera)
+
+
+def _check_size(data: bytes, max_pixels: int) -> tuple[int, int]:
+    """(width, height) from the image header (nothing decoded); 400 if unreadable or too small, 413 if too many
+    pixels."""
     try:
-        with Image.open(io.BytesIO(data)) as im:
-            width, height = im.size
-    except Image.DecompressionBombError as exc:
-        raise HTTPException(413, f"image has too many pixels ({exc})") from exc
-    except (OSError, ValueError) as exc:
+        width, height = read_size(data, max_pixels)
+    except ImageTooLargeError as exc:
+        raise HTTPException(413, str(exc)) from exc
+    except InvalidImageError as exc:
         raise HTTPException(400, "request body is not a decodable image (PNG, JPEG, ...)") from exc
     if min(width, height) < MIN_IMAGE_SIDE:
         raise HTTPException(400, f"image is {width}x{height}; both sides must be >= {MIN_IMAGE_SIDE} px")
-    if width * height > MAX_IMAGE_PIXELS:
-        raise HTTPException(413, f"image is {width}x{height}; at most {MAX_IMAGE_PIXELS} pixels")
     return width, height
 
 
@@ -77,7 +125,16 @@ def _camera_from_query(params, width: int, height: int) -> Camera | None:
     return Camera(width, height, values["fx"], values["fy"], values["cx"], values["cy"])
 
 
-async def _read_body(request: Request, limit: int) -> bytes:
+class _Closing(HTTPException):
+    """An error answered before the whole body was read: the connection is closed after the answer."""
+
+    def __init__(self, status_code: int, detail: str) -> None:
+        super().__init__(status_code, detail, headers={"Connection": "close"})
+
+
+async def _read_body(request: Request, limit: int, idle_timeout: float, timeout: float) -> bytes:
+    """The whole body: 413 over ``limit``, 408 when nothing arrives for ``idle_timeout`` s or the body takes
+    longer than ``timeout`` s (a Content-Length larger than the body waits for bytes that never come)."""
     length = request.headers.get("content-length")
     if length is not None:
         try:
@@ -85,12 +142,24 @@ async def _read_body(request: Request, limit: int) -> bytes:
         except ValueError:
             raise HTTPException(400, "invalid Content-Length header") from None
         if declared > limit:
-            raise HTTPException(413, f"upload of {declared} bytes exceeds the limit of {limit} bytes")
+            raise _Closing(413, f"upload of {declared} bytes exceeds the limit of {limit} bytes")
     chunks, size = [], 0
-    async for chunk in request.stream():
+    deadline = time.monotonic() + timeout
+    stream = request.stream().__aiter__()
+    while True:
+        wait = min(idle_timeout, deadline - time.monotonic())
+        try:
+            async with asyncio.timeout(max(wait, 0.0)):
+                chunk = await anext(stream)
+        except StopAsyncIteration:
+            break
+        except TimeoutError:
+            what = f"of {length} declared " if length is not None else ""
+            raise _Closing(408, f"upload timed out after {size} bytes {what}(no data for {idle_timeout:g} s or "
+                                f"not complete within {timeout:g} s)") from None
         size += len(chunk)
         if size > limit:
-            raise HTTPException(413, f"upload exceeds the limit of {limit} bytes")
+            raise _Closing(413, f"upload exceeds the limit of {limit} bytes")
         chunks.append(chunk)
     data = b"".join(chunks)
     if not data:
@@ -98,31 +167,42 @@ async def _read_body(request: Request, limit: int) -> bytes:
     return data
 
 
-def create_app(localizer: Localizer, max_upload_bytes: int = MAX_UPLOAD_BYTES) -> FastAPI:
-    """The FastAPI app around one :class:`Localizer` (calls are serialised with a lock)."""
+def create_app(
+    backend: Localizer | Backend,
+    max_upload_bytes: int = MAX_UPLOAD_BYTES,
+    body_idle_timeout: float = BODY_IDLE_TIMEOUT_S,
+    body_timeout: float = BODY_TIMEOUT_S,
+) -> FastAPI:
+    """The FastAPI app around a :class:`LocalizerPool` or an in-process :class:`Localizer`."""
+    if isinstance(backend, Localizer):
+        backend = InProcessBackend(backend)
     app = FastAPI(title="synthleak localization", docs_url=None, redoc_url=None, openapi_url=None)
-    lock = threading.Lock()
-
-    def run(data: bytes, camera: Camera | None):
-        with lock:
-            return localizer.localize(data, camera)
 
     @app.get("/health")
     async def health() -> dict:
         return {"status": "ok"}
 
-    @app.post("/localize")
-    async def localize(request: Request) -> dict:
-        data = await _read_body(request, max_upload_bytes)
-        width, height = _check_size(data)
-        camera = _camera_from_query(request.query_params, width, height)
-        if camera is None and (width, height) != (localizer.camera.width, localizer.camera.height):
-            raise HTTPException(400, f"image is {width}x{height} but the map camera is "
-                                     f"{localizer.camera.width}x{localizer.camera.height}: pass intrinsics")
+    @app.post("/localize", response_model=None)
+    async def localize(request: Request) -> dict | Response:
         try:
-            result = await run_in_threadpool(run, data, camera)
+            data = await _read_body(request, max_upload_bytes, body_idle_timeout, body_timeout)
+        except ClientDisconnect:
+            client = f"{request.client.host}:{request.client.port}" if request.client else "client"
+            logger.info("%s disconnected during its upload to /localize", client)
+            return Response(status_code=400)  # nobody reads it
+        width, height = _check_size(data, backend.max_query_pixels)
+        camera = _camera_from_query(request.query_params, width, height)
+        if camera is None and (width, height) != (backend.camera.width, backend.camera.height):
+            raise HTTPException(400, f"image is {width}x{height} but the map camera is "
+                                     f"{backend.camera.width}x{backend.camera.height}: pass intrinsics")
+        try:
+            result = await backend.localize(data, camera)
+        except ImageTooLargeError as exc:
+            raise HTTPException(413, str(exc)) from exc
         except InvalidImageError as exc:
             raise HTTPException(400, str(exc)) from exc
+        except WorkerCrashedError as exc:
+            raise HTTPException(503, str(exc)) from exc
         return response_from_result(result)
 
     return app
@@ -138,6 +218,14 @@ def response_from_result(result: LocalizationResult) -> dict:
         "translation": [float(x) for x in pose[:3, 3]]}}
 
 
+def default_workers() -> int:
+    """Localizer processes by default: one per core, at most 8 (each holds the map in memory)."""
+    return max(1, min(8, os.cpu_count() or 1))
+
+
+LOG_CONFIG_LOGGERS = {"synthleak.server": {"handlers": ["default"], "level": "INFO", "propagate": False}}
+
+
 def serve(
     map_dir: Path,
     host: str = "127.0.0.1",
@@ -147,9 +235,19 @@ def serve(
     decision_log: Path | None = None,
     weights_dir: Path | None = None,
     max_upload_bytes: int = MAX_UPLOAD_BYTES,
+    workers: int | None = None,
+    max_query_pixels: int = MAX_QUERY_PIXELS,
 ) -> None:
-    """Load the map and run the service with uvicorn until interrupted."""
-    import uvicorn
+    """Start ``workers`` localizer processes (:func:`default_workers` if None) on the map and serve it with
+    uvicorn until interrupted."""
+    import copy
 
-    localizer = Localizer.load(Path(map_dir), config, defense, weights_dir, decision_log)
-    uvicorn.run(create_app(localizer, max_upload_bytes), host=host, port=port, log_level="info")
+    import uvicorn
+    from uvicorn.config import LOGGING_CONFIG
+
+    log_config = copy.deepcopy(LOGGING_CONFIG)
+    log_config["loggers"].update(LOG_CONFIG_LOGGERS)
+    with LocalizerPool(Path(map_dir), workers or default_workers(), config, defense, weights_dir, decision_log,
+                       max_query_pixels) as pool:
+        uvicorn.run(create_app(pool, max_upload_bytes), host=host, port=port, log_level="info",
+                    log_config=log_config, limit_concurrency=MAX_CONNECTIONS)

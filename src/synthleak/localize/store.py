@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from synthleak.errors import SynthleakError
 from synthleak.localize.features import Features
 from synthleak.render.base import Camera
 
@@ -29,7 +30,7 @@ FORMAT_VERSION = 2
 """2: vocabulary-tree ``bow.npz``, ``image_instances.json``, ``retrieval`` in ``map.json``."""
 
 
-class MapError(ValueError):
+class MapError(SynthleakError, ValueError):
     """A map folder that cannot be used; names the file and the field."""
 
 
@@ -51,10 +52,9 @@ def camera_to_json(camera: Camera) -> dict:
             "cx": camera.cx, "cy": camera.cy}
 
 
-def read_map(map_dir: Path) -> MapData:
-    """Load ``map.json``, ``features.npz`` and ``points.npz``."""
-    map_dir = Path(map_dir)
-    meta_path = map_dir / "map.json"
+def read_map_meta(map_dir: Path) -> tuple[dict, Camera]:
+    """``map.json`` and the map camera, checked (the arrays are not read)."""
+    meta_path = Path(map_dir) / "map.json"
     if not meta_path.is_file():
         raise MapError(f"{meta_path}: missing (build the map with synthleak.localize.build_map)")
     meta = json.loads(meta_path.read_text())
@@ -67,6 +67,13 @@ def read_map(map_dir: Path) -> MapData:
                         float(c["cx"]), float(c["cy"]))
     except (KeyError, TypeError, ValueError) as exc:
         raise MapError(f"{meta_path}: field 'camera' is invalid ({exc})") from exc
+    return meta, camera
+
+
+def read_map(map_dir: Path) -> MapData:
+    """Load ``map.json``, ``features.npz`` and ``points.npz``."""
+    map_dir = Path(map_dir)
+    meta, camera = read_map_meta(map_dir)
     with np.load(map_dir / "features.npz") as data:
         names = [str(n) for n in data["names"]]
         binary = bool(data["binary"])

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from synthleak.config import RenderConfig
+from synthleak.errors import MissingDependencyError
 from synthleak.render.base import Camera, Frame, RenderMesh, RenderScene
 from synthleak.scene.spec import Light
 
@@ -52,7 +53,7 @@ _owner: list[object] = []
 """The renderer whose scene bpy holds now (bpy is one Blender instance per process)."""
 
 
-class BlenderUnavailable(ImportError):
+class BlenderUnavailable(MissingDependencyError):
     """bpy or OpenEXR cannot be imported here; the message says how to install them."""
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ import cv2
 import numpy as np
 
 from synthleak.atomic_io import TEMP_PREFIX, atomic_write_bytes, atomic_write_text
+from synthleak.errors import SynthleakError
 from synthleak.geometry.poses import (
     check_pose,
     invert,
@@ -29,7 +31,7 @@ BOP_DEPTH_SCALE = 0.25
 """BOP 16-bit depth PNGs hold depth_mm / BOP_DEPTH_SCALE: 0.25 mm steps up to 16.4 m (0.1 would stop at 6.5 m)."""
 
 
-class DatasetError(ValueError):
+class DatasetError(SynthleakError, ValueError):
     """A malformed dataset file; the message names the file and the field."""
 
 
@@ -134,6 +136,35 @@ def write_frame(seq_dir: Path, frame: str | int, data: Frame) -> None:
     atomic_write_bytes(paths["depth"], encode_npy(data.depth.astype(np.float32)))
     atomic_write_bytes(paths["instance"], encode_png(data.instance.astype(np.uint16)))
     atomic_write_bytes(paths["rgb"], encode_png(data.rgb))
+
+
+def write_bop_rgb(seq_dir: Path) -> int:
+    """``bop/rgb/<frame>.png`` for every image of ``images/``: the scene folder ``bop/`` then holds its RGB frames
+    where BOP tools (bop_toolkit) look for them. Each is a hard link to the image where the file system allows
+    one (no extra space), else a copy (the same bytes); both are made under a temporary name and renamed into
+    place. An existing link to the image (or, where links fail, a copy with its bytes) is kept. Returns how many
+    were made."""
+    seq_dir = Path(seq_dir)
+    target_dir = seq_dir / "bop" / "rgb"
+    made = 0
+    for image in sorted((seq_dir / "images").glob("*.png")):
+        target = target_dir / image.name
+        if target.is_file() and os.path.samefile(image, target):
+            continue
+        target_dir.mkdir(parents=True, exist_ok=True)
+        tmp = target_dir / f"{TEMP_PREFIX}{image.name}.{os.getpid()}"
+        tmp.unlink(missing_ok=True)
+        try:
+            os.link(image, tmp)
+        except OSError:  # no hard links here (another file system, FAT, some network mounts): a copy
+            data = image.read_bytes()
+            if target.is_file() and target.read_bytes() == data:
+                continue
+            atomic_write_bytes(target, data)
+        else:
+            os.replace(tmp, target)
+        made += 1
+    return made
 
 
 # ----------------------------------------------------------------------------------------------- metadata
@@ -252,7 +283,7 @@ def write_sequence_metadata(
         },
     )
     if split is not None:
-        atomic_write_json(seq_dir / "split.json", {"map": list(split["map"]), "query": list(split["query"])})
+        atomic_write_json(seq_dir / "split.json", {key: list(frames) for key, frames in split.items()})
 
 
 def to_object_frame(
@@ -273,7 +304,8 @@ def to_object_frame(
 
 
 def make_split(frames: list[str], query_every: int) -> dict[str, list[str]]:
-    """Every ``query_every``-th frame (indices n-1, 2n-1, ...) is a held-out query; the rest build the map."""
+    """Every ``query_every``-th frame (indices n-1, 2n-1, ...) is a held-out query; the rest build the map.
+    (A scene sequence with genuine close-ups adds ``closeup``: the query frames that are close-ups.)"""
     if query_every < 2:
         raise ValueError(f"render.query_every must be >= 2, got {query_every}")
     query = [f for i, f in enumerate(frames) if i % query_every == query_every - 1]
@@ -450,13 +482,17 @@ def load_sequence(path: Path) -> Sequence:
     split_path = root / "split.json"
     if split_path.is_file():
         raw = read_json(split_path)
-        for key in ("map", "query"):
+        keys = ("map", "query", *(("closeup",) if "closeup" in raw else ()))
+        for key in keys:
             if not isinstance(raw.get(key), list):
                 raise DatasetError(f"{split_path}: field {key!r} must be a list of frame names")
             unknown = [f for f in raw[key] if f not in poses]
             if unknown:
                 raise DatasetError(f"{split_path}: {key}: frames not in colmap/images.txt: {unknown[:5]}")
-        split = {"map": list(raw["map"]), "query": list(raw["query"])}
+        not_queries = sorted(set(raw.get("closeup", [])) - set(raw["query"]))
+        if not_queries:
+            raise DatasetError(f"{split_path}: closeup: frames that are not queries: {not_queries[:5]}")
+        split = {key: list(raw[key]) for key in keys}
     for name, pose in poses.items():
         if not np.all(np.isfinite(pose)):
             raise DatasetError(f"{root / 'colmap' / 'images.txt'}: image {name}: non-finite pose")

@@ -21,11 +21,12 @@ import numpy as np
 from synthleak.executors import worker_thread_cap
 from synthleak.render.base import Camera, Frame, RenderMesh, RenderScene
 from synthleak.render.raycast import RaycastGT, pixel_rays
+from synthleak.render.registry import FILTERS, INTEGRATORS, MITSUBA_VARIANTS
 from synthleak.scene.spec import Light
 
 VARIANT = "scalar_rgb"
 """The default variant: runs anywhere the wheel installs."""
-VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
+VARIANTS = MITSUBA_VARIANTS
 LLVM_MIN_VERSION = 16
 """drjit's LLVM backend aborts the process with Debian 12's LLVM 15 (measured); LLVM 19 works (measured)."""
 _LLVM_GLOBS = (
@@ -74,13 +75,13 @@ def find_libllvm() -> str:
 def _mitsuba(variant: str = VARIANT) -> Any:
     if variant not in VARIANTS:
         raise ValueError(f"render.mitsuba_variant: {variant!r} is not one of {', '.join(VARIANTS)}")
+    if variant.startswith("llvm"):  # before drjit is imported: it tries (and complains about) the path then
+        os.environ["DRJIT_LIBLLVM_PATH"] = find_libllvm()  # read when drjit first starts its LLVM backend
     try:
         import mitsuba as mi
     except ImportError as exc:  # pragma: no cover - depends on the environment
         raise ImportError("renderer 'mitsuba' needs mitsuba 3: pip install 'mitsuba>=3.5'") from exc
     if mi.variant() != variant:
-        if variant.startswith("llvm"):
-            os.environ["DRJIT_LIBLLVM_PATH"] = find_libllvm()  # read when drjit first starts its LLVM backend
         mi.set_variant(variant)
         if variant.startswith("llvm"):
             _register_each_light(mi)
@@ -91,11 +92,11 @@ def _register_each_light(mi: Any) -> None:
     """Register :data:`EACH_LIGHT`: the ``direct`` integrator's job for delta lights, without its noise.
 
     For every camera sample it intersects once, adds the radiance of an emissive surface hit, then adds
-    every delta emitter's (point, directional) contribution with its own shadow ray and BSDF evaluation.
-    Summing all lights per sample (mitsuba's ``direct`` picks one at random per sample) leaves no light-
-    selection noise, and one primary intersection serves every light (the per-light passes of the scalar
-    variant trace it once per pass). Emissive meshes glow where seen but light nothing (non-delta emitters
-    are skipped; the scalar variant's first pass samples them as area lights, with grain); a miss is black
+    every emitter's contribution with its own shadow ray and BSDF evaluation: delta emitters (point,
+    directional) exactly, emissive meshes (area emitters) from one point sampled on them, as the scalar
+    variant's first pass does (with the same soft-shadow grain). Summing all lights per sample (mitsuba's
+    ``direct`` picks one at random per sample) leaves no light-selection noise, and one primary intersection
+    serves every light (the per-light passes of the scalar variant trace it once per pass); a miss is black
     (deterministic lighting has no environment emitter)."""
 
     class EachLight(mi.SamplingIntegrator):
@@ -105,9 +106,9 @@ def _register_each_light(mi: Any) -> None:
             result = mi.Spectrum(si.emitter(scene, valid).eval(si, valid))
             bsdf, ctx = si.bsdf(ray), mi.BSDFContext()
             for emitter in scene.emitters():
-                if not mi.has_flag(emitter.flags(), mi.EmitterFlags.Delta):
-                    continue
-                ds, weight = emitter.sample_direction(si, mi.Point2f(0.5, 0.5), valid)
+                delta = mi.has_flag(emitter.flags(), mi.EmitterFlags.Delta)
+                sample = mi.Point2f(0.5, 0.5) if delta else sampler.next_2d(valid)
+                ds, weight = emitter.sample_direction(si, sample, valid)
                 lit = valid & (ds.pdf != 0.0)
                 lit &= ~scene.ray_test(si.spawn_ray_to(ds.p), lit)
                 result[lit] += bsdf.eval(ctx, si, si.to_local(ds.d), lit) * weight
@@ -300,10 +301,10 @@ class MitsubaRenderer:
     ) -> None:
         if lighting not in ("deterministic", "physical"):
             raise ValueError(f"lighting: {lighting!r} is not 'deterministic' or 'physical'")
-        if integrator not in ("direct", "path"):
-            raise ValueError(f"render.integrator: {integrator!r} is not 'direct' or 'path'")
-        if filter not in ("box", "gaussian", "tent"):
-            raise ValueError(f"render.filter: {filter!r} is not 'box', 'gaussian' or 'tent'")
+        if integrator not in INTEGRATORS:
+            raise ValueError(f"render.integrator: {integrator!r} is not one of {', '.join(INTEGRATORS)}")
+        if filter not in FILTERS:
+            raise ValueError(f"render.filter: {filter!r} is not one of {', '.join(FILTERS)}")
         if spp < 1:
             raise ValueError(f"render.spp: must be >= 1, got {spp}")
         self.lighting = lighting

@@ -21,6 +21,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from synthleak.cache import MARKER
 from synthleak.config import StudyConfig, config_to_dict
+from synthleak.errors import StageError
 from synthleak.executors import Executor, LocalExecutor, chunks
 from synthleak.render.base import Camera, RenderScene
 from synthleak.render.bop_full import write_bop_extras
@@ -33,11 +34,14 @@ from synthleak.render.dataset import (
     frame_name,
     make_split,
     to_object_frame,
+    write_bop_rgb,
     write_frame,
     write_sequence_metadata,
 )
+from synthleak.render.furniture_views import closeup_views, furniture_walkthrough
+from synthleak.render.lighting import with_default_light
 from synthleak.render.registry import get_renderer
-from synthleak.render.trajectories import orbit, walkthrough
+from synthleak.render.trajectories import WALKTHROUGHS, orbit, walkthrough
 from synthleak.seeding import derive_seed, make_rng
 
 MANIFEST = "manifest.json"
@@ -54,10 +58,6 @@ PACKAGES = (
     "pillow",
     "rich",
 )
-
-
-class StageError(RuntimeError):
-    """A stage file that is missing or cannot be read; the message names the file."""
 
 
 def _progress(enabled: bool) -> Progress:
@@ -86,14 +86,26 @@ def load_stage(scene_path: Path) -> RenderScene:
 
 
 def plan_poses(scene: RenderScene, config: StudyConfig, kind: str, name: str) -> list:
-    """The sequence's ``cam_from_world`` poses in the stage world (deterministic in seed and name)."""
+    """The sequence's ``cam_from_world`` poses in the stage world (deterministic in seed and name).
+
+    Scene sequences follow ``render.walkthrough`` (the ``furniture`` tour falls back to the ``loop`` in a room
+    without furniture); their close-ups are planned separately (:func:`plan_closeups`)."""
     rng = make_rng(config.seed, "trajectory", name)
     rc = config.render
     if kind == "scene":
-        return walkthrough(scene, rc.scene_frames, rng)
+        if rc.walkthrough not in WALKTHROUGHS:
+            raise ValueError(f"render.walkthrough: {rc.walkthrough!r} is not one of {WALKTHROUGHS}")
+        poses = None
+        if rc.walkthrough == "furniture":
+            poses = furniture_walkthrough(scene, rc.scene_frames, rng, rc.hfov_deg, rc.height / rc.width)
+        return poses if poses is not None else walkthrough(scene, rc.scene_frames, rng)
     if kind == "attacker":
         if scene.target_instance_id is None:
             raise StageError(f"{scene.source or name}: attacker stage has no target_instance_id")
+        target = scene.instances.get(scene.target_instance_id)
+        if target is None or not np.any(np.asarray(target.extents) > 0):
+            raise StageError(f"{scene.source or name}: synthleak:targetInstanceId {scene.target_instance_id} is "
+                             f"{'not an instance' if target is None else 'an instance without geometry'} of the stage")
         return orbit(
             scene,
             scene.target_instance_id,
@@ -103,6 +115,22 @@ def plan_poses(scene: RenderScene, config: StudyConfig, kind: str, name: str) ->
             aspect=rc.height / rc.width,
         )
     raise ValueError(f"kind must be 'scene' or 'attacker', got {kind!r}")
+
+
+def plan_closeups(scene: RenderScene, config: StudyConfig, name: str, queries: list[str]) -> dict[str, np.ndarray]:
+    """Frame name -> close-up ``cam_from_world`` for ``render.genuine_closeup_fraction`` of the query frames
+    (drawn from their own random stream, so the walk-through does not change with the fraction)."""
+    fraction = config.render.genuine_closeup_fraction
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"render.genuine_closeup_fraction must be in [0, 1], got {fraction}")
+    count = int(round(fraction * len(queries)))
+    if count == 0:
+        return {}
+    rng = make_rng(config.seed, "closeups", name)
+    chosen = sorted(queries[i] for i in rng.choice(len(queries), size=count, replace=False))
+    rc = config.render
+    poses = closeup_views(scene, count, rng, rc.hfov_deg, rc.height / rc.width)
+    return dict(zip(chosen, poses, strict=False))
 
 
 FRAMES_PER_TASK = 25
@@ -124,7 +152,8 @@ class SequenceJob:
         self.name = self.name or self.out_dir.name
 
     def scene(self) -> RenderScene:
-        return self.stage if isinstance(self.stage, RenderScene) else load_stage(self.stage)
+        """The stage as a render scene; a stage with no light at all gets the default light (and a warning)."""
+        return with_default_light(self.stage if isinstance(self.stage, RenderScene) else load_stage(self.stage))
 
 
 @dataclass
@@ -182,6 +211,13 @@ def plan_sequence(job: SequenceJob, config: StudyConfig, scene: RenderScene | No
     camera = Camera.from_hfov(rc.width, rc.height, rc.hfov_deg)
     poses = plan_poses(scene, config, kind, name)
     frames = [frame_name(i) for i in range(len(poses))]
+    split = None
+    if kind == "scene":
+        split = make_split(frames, rc.query_every)
+        closeups = plan_closeups(scene, config, name, split["query"])
+        poses = [closeups.get(f, p) for f, p in zip(frames, poses, strict=True)]
+        if closeups:
+            split["closeup"] = sorted(closeups)
     if kind == "attacker":
         stored_poses, instances = to_object_frame(poses, scene.instances, scene.target_instance_id)
     else:
@@ -198,7 +234,7 @@ def plan_sequence(job: SequenceJob, config: StudyConfig, scene: RenderScene | No
         instances=instances,
         frame="object" if kind == "attacker" else "world",
         target_instance_id=scene.target_instance_id if kind == "attacker" else None,
-        split=make_split(frames, rc.query_every) if kind == "scene" else None,
+        split=split,
     )
     todo = [i for i in range(len(frames)) if not frame_complete(out_dir, frames[i])]
     return [FrameTask(job, config, idx, [poses[i] for i in idx]) for idx in chunks(todo, FRAMES_PER_TASK)]
@@ -217,6 +253,8 @@ def render_sequences(
         tasks += plan_sequence(job, config)
     executor.map(render_frame_task, tasks, "render frames", progress)
     _WORKER_RENDERER.clear()  # the serial path renders in this process: free the last scene
+    for job in jobs:  # the BOP scene folder's rgb/ (hard links: cheap, so also without the extras)
+        write_bop_rgb(job.out_dir)
     if config.render.bop_extras:
         started = {id(t.job) for t in tasks}
         extras = [job for job in jobs
@@ -270,18 +308,85 @@ def _read_index(stages_dir: Path) -> dict[str, Any]:
     return index
 
 
+STAGE_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+"""File name suffixes of USD stages."""
+
+
+def _root_layer(path: Path) -> Any:
+    """The root layer of the stage file at ``path`` (no composition); a StageError naming the file otherwise."""
+    from pxr import Sdf
+
+    try:
+        layer = Sdf.Layer.FindOrOpen(str(path))
+    except Exception as exc:  # noqa: BLE001 - pxr raises Tf.ErrorException with a multi-line message
+        raise StageError(f"{path}: cannot read stage: {' '.join(str(exc).split())}") from exc
+    if layer is None:
+        raise StageError(f"{path}: cannot read stage")
+    return layer
+
+
+def _stage_kind(path: Path) -> str:
+    """``attacker`` for a stage whose root layer names a target instance (``synthleak:targetInstanceId`` >= 0 in
+    its customLayerData, as `synthleak scenes` writes attacker setups), else ``scene``."""
+    layer = _root_layer(path)
+    target = dict(layer.customLayerData or {}).get("synthleak:targetInstanceId", -1)
+    return "attacker" if target is not None and int(target) >= 0 else "scene"
+
+
+def root_stages(folder: Path) -> list[Path]:
+    """The stage files directly in ``folder`` that no other stage there uses as a sublayer, reference or payload
+    (those are parts of a stage, not stages to render), sorted by name."""
+    files = sorted(p for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in STAGE_SUFFIXES)
+    used: set[Path] = set()
+    for path in files:
+        layer = _root_layer(path)
+        used |= {Path(layer.ComputeAbsolutePath(dep)).resolve() for dep in layer.GetCompositionAssetDependencies()}
+    return [p for p in files if p.resolve() not in used]
+
+
+def stage_jobs(stages: Path, out_dir: Path) -> list[SequenceJob]:
+    """The sequences of ``stages``: the rooms (``out_dir/scenes/<room>``) and attacker objects
+    (``out_dir/attackers/<id>``) of ``stages/index.json`` as `synthleak scenes` writes it; else, for stages
+    written by other tools, one stage file or every root stage of a folder (:func:`root_stages`), each a
+    sequence named after its file: an attacker sequence (``out_dir/attackers/<stem>``) when the stage names a
+    target instance, a scene sequence (``out_dir/scenes/<stem>``) otherwise."""
+    stages, out_dir = Path(stages), Path(out_dir)
+    if stages.is_dir() and (stages / "index.json").is_file():
+        index = _read_index(stages)
+        jobs = [(stages / r["stage"], out_dir / "scenes" / r["name"], "scene") for r in index["rooms"]]
+        jobs += [(stages / a["stage"], out_dir / "attackers" / a["id"], "attacker")
+                 for a in index["attacker_objects"]]
+        missing = [str(stage) for stage, _, _ in jobs if not stage.is_file()]
+        if missing:
+            raise StageError(f"{stages / 'index.json'}: stage files do not exist: {', '.join(missing)}")
+        return [SequenceJob(stage, seq_dir, kind) for stage, seq_dir, kind in jobs]
+    if stages.is_file():
+        if stages.suffix.lower() not in STAGE_SUFFIXES:
+            raise StageError(f"{stages}: not a USD stage (expected {', '.join(STAGE_SUFFIXES)}) or a stage folder")
+        files = [stages]
+    elif stages.is_dir():
+        files = root_stages(stages)
+        if not files:
+            raise StageError(f"{stages}: no index.json and no USD stage ({', '.join(STAGE_SUFFIXES)}) in the folder")
+    else:
+        raise StageError(f"{stages}: no such stage file or folder")
+    stems = [p.stem for p in files]
+    clashes = sorted({s for s in stems if stems.count(s) > 1})
+    if clashes:
+        raise StageError(f"{stages}: several stage files are named {clashes[0]!r} (sequences are named after files)")
+    jobs = []
+    for path in files:
+        kind = _stage_kind(path)
+        jobs.append(SequenceJob(path, out_dir / ("attackers" if kind == "attacker" else "scenes") / path.stem, kind))
+    return jobs
+
+
 def render_stages(config: StudyConfig, stages_dir: Path, out_dir: Path, progress: bool = True,
                   executor: Executor | None = None) -> Path:
-    """Render every room (``out_dir/scenes/<room>``) and attacker object (``out_dir/attackers/<id>``) of
-    ``stages_dir/index.json``, then write ``out_dir/manifest.json``."""
-    stages_dir, out_dir = Path(stages_dir), Path(out_dir)
-    index = _read_index(stages_dir)
-    jobs = [(stages_dir / r["stage"], out_dir / "scenes" / r["name"], "scene") for r in index["rooms"]]
-    jobs += [(stages_dir / a["stage"], out_dir / "attackers" / a["id"], "attacker") for a in index["attacker_objects"]]
-    missing = [str(stage) for stage, _, _ in jobs if not stage.is_file()]
-    if missing:
-        raise StageError(f"{stages_dir / 'index.json'}: stage files do not exist: {', '.join(missing)}")
-    render_sequences([SequenceJob(stage, seq_dir, kind) for stage, seq_dir, kind in jobs], config, executor, progress)
+    """Render every sequence of ``stages_dir`` (:func:`stage_jobs`: a folder written by `synthleak scenes`, a
+    folder of stages written by other tools, or one stage file), then write ``out_dir/manifest.json``."""
+    out_dir = Path(out_dir)
+    render_sequences(stage_jobs(Path(stages_dir), out_dir), config, executor, progress)
     write_manifest(out_dir, config)
     return out_dir
 

@@ -25,6 +25,7 @@ Renders are deterministic (no random sampling; ``seed`` is unused).
 from __future__ import annotations
 
 import atexit
+import functools
 import os
 import shutil
 import tempfile
@@ -36,6 +37,7 @@ import numpy as np
 
 from synthleak.config import RenderConfig
 from synthleak.render.base import Camera, Frame, RenderMesh, RenderScene
+from synthleak.render.lighting import emissive_lights
 from synthleak.scene.spec import Light
 
 INSTALL_HINT = (
@@ -209,6 +211,36 @@ def _shader_dir(pyrender: Any) -> str | None:
     return target
 
 
+@functools.cache
+def _ordered_lights_scene(pyrender: Any) -> type:
+    """A ``pyrender.Scene`` whose ``light_nodes`` come in the order the lights were added.
+
+    pyrender's ``light_nodes`` is a union of sets, iterated in an order that follows the nodes' memory
+    addresses, so it changed from process to process; the shader sums the lights of a kind in the order they
+    were bound, and float addition is not associative: with three or more lights of a kind a few pixels per
+    frame came out one grey level apart between two runs of the same config (``tests/test_backends.py``)."""
+
+    class OrderedLightsScene(pyrender.Scene):
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            self._light_order: list = []
+            super().__init__(*args, **kwargs)
+
+        def add_node(self, node: Any, parent_node: Any = None) -> None:
+            super().add_node(node, parent_node)
+            if node.light is not None:
+                self._light_order.append(node)
+
+        def remove_node(self, node: Any) -> None:
+            super().remove_node(node)
+            self._light_order = [n for n in self._light_order if n in self.nodes]
+
+        @property
+        def light_nodes(self) -> list:
+            return list(self._light_order)
+
+    return OrderedLightsScene
+
+
 def _patch_renderer(pyrender: Any, renderer: Any) -> None:
     """Make a ``pyrender.Renderer`` draw scenes prepared here in a fixed order, with cheaper shadow filtering.
 
@@ -275,7 +307,7 @@ class PyrenderRenderer:
             raise ValueError("pyrender: the scene has no meshes")
         ambient = float(max(scene.ambient, 0.0))
         bg = _linear_to_srgb(ambient)  # the background shows the ambient environment, as in mitsuba
-        pscene = pr.Scene(bg_color=(bg, bg, bg, 1.0), ambient_light=(ambient, ambient, ambient))
+        pscene = _ordered_lights_scene(pr)(bg_color=(bg, bg, bg, 1.0), ambient_light=(ambient, ambient, ambient))
         seg_map: dict[Any, np.ndarray] = {}
         order = []
         for mesh in scene.meshes:
@@ -288,7 +320,7 @@ class PyrenderRenderer:
             node = pscene.add(pmesh)
             order.append(node)
             seg_map[node] = encode_ids(np.array(mesh.instance_id))
-        for light in scene.lights:
+        for light in (*scene.lights, *emissive_lights(scene)):  # emissive meshes light through stand-ins
             plight, pose = _light_node(pr, light)
             pscene.add(plight, pose=pose, name=light.name)
         self._cam_node = pscene.add(pr.IntrinsicsCamera(1.0, 1.0, 0.5, 0.5, znear=ZNEAR, zfar=ZFAR))

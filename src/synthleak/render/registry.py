@@ -6,9 +6,17 @@ import importlib
 from collections.abc import Callable
 
 from synthleak.config import RenderConfig
+from synthleak.errors import SynthleakError
 from synthleak.render.base import Renderer
 
 RendererFactory = Callable[[RenderConfig], Renderer]
+
+INTEGRATORS = ("direct", "path")
+"""``render.integrator``: direct lighting only, or a path tracer of ``max_depth`` (mitsuba, Blender)."""
+FILTERS = ("box", "gaussian", "tent")
+"""``render.filter``: mitsuba's pixel reconstruction filter."""
+MITSUBA_VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
+"""``render.mitsuba_variant``: the mitsuba variants the backend supports (see ``mitsuba_backend``)."""
 
 _FACTORIES: dict[str, RendererFactory] = {}
 _INSTALL_HINTS: dict[str, str] = {
@@ -18,7 +26,7 @@ _INSTALL_HINTS: dict[str, str] = {
 }
 
 
-class RendererUnavailable(RuntimeError):
+class RendererUnavailable(SynthleakError, RuntimeError):
     """The requested backend is unknown or cannot be imported."""
 
 

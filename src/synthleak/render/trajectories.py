@@ -8,6 +8,10 @@ from synthleak.geometry.poses import look_at, make_pose
 from synthleak.render.base import InstanceInfo, RenderScene
 
 EYE_HEIGHT = (1.3, 1.8)
+WALKTHROUGHS = ("loop", "furniture")
+"""``render.walkthrough`` values: this module's loop, or :mod:`synthleak.render.furniture_views`' tour."""
+OPEN_HEIGHT = 2.5
+"""Height of the space above the floor of a stage without walls or ceiling (walk-throughs stay 0.3 m below)."""
 
 
 def _roll(cam_from_world: np.ndarray, roll_rad: float) -> np.ndarray:
@@ -18,14 +22,17 @@ def _roll(cam_from_world: np.ndarray, roll_rad: float) -> np.ndarray:
 def room_bounds(scene: RenderScene) -> np.ndarray:
     """(2, 3) world bounds of the room's interior: x, y from its floor (the shell piece named ``floor``, else
     the lowest shell piece), z from the floor's top to the lowest shell piece above it (the ceiling).
-    Pieces outside the room (a backdrop behind a window) do not count. Without a shell: all meshes."""
+    Pieces outside the room (a backdrop behind a window) do not count. Without a shell (stages of other tools):
+    the bounds of all meshes, at least :data:`OPEN_HEIGHT` high (an open stage: a floor and furniture)."""
     shell_ids = {i for i, info in scene.instances.items() if info.role == "shell"}
     shell = [m for m in scene.meshes if m.instance_id in shell_ids]
     if not shell:
         if not scene.meshes:
             raise ValueError(f"{scene.source or 'scene'}: no meshes to bound the room")
         verts = np.concatenate([np.asarray(m.vertices, dtype=np.float64).reshape(-1, 3) for m in scene.meshes])
-        return np.stack([verts.min(axis=0), verts.max(axis=0)])
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
+        hi[2] = max(hi[2], lo[2] + OPEN_HEIGHT)
+        return np.stack([lo, hi])
     verts = {id(m): np.asarray(m.vertices, dtype=np.float64).reshape(-1, 3) for m in shell}
     names = {m.instance_id: scene.instances[m.instance_id].name.lower() for m in shell}
     floors = [m for m in shell if "floor" in names[m.instance_id]]
@@ -160,12 +167,41 @@ def _view_yaw(eye: np.ndarray, loop_centre: np.ndarray, room_centre: np.ndarray,
     return yaw + float(np.sum(weights * delta) / (0.4 + np.sum(weights)))
 
 
-def orbit_distance(extents: np.ndarray, hfov_deg: float, aspect: float, fill: float) -> float:
-    """Distance at which the object's bounding sphere spans ``fill`` of the image's shorter field of view."""
-    radius = 0.5 * float(np.linalg.norm(extents))
+def orbit_distance(extents: np.ndarray, hfov_deg: float, aspect: float, fill: float,
+                   direction: np.ndarray | None = None, points: np.ndarray | None = None) -> float:
+    """Distance from the box centre at which the object spans ``fill`` of the image's shorter field of view.
+
+    Seen from ``direction`` (unit, object frame, from the object towards the camera), every one of ``points``
+    (object frame, relative to the box centre; default: the bounding box's corners) stays within that angle of
+    the optical axis, so a thin object seen end-on is approached closer; without a direction, the bounding
+    sphere's distance (any view)."""
     hfov = np.radians(hfov_deg)
     vfov = 2.0 * np.arctan(np.tan(hfov / 2.0) * aspect)
-    return radius / np.sin(0.5 * fill * min(hfov, vfov))
+    half_angle = 0.5 * fill * min(hfov, vfov)
+    half = 0.5 * np.asarray(extents, dtype=np.float64)
+    if direction is None:
+        return float(np.linalg.norm(half)) / np.sin(half_angle)
+    v = np.asarray(direction, dtype=np.float64) / np.linalg.norm(direction)
+    if points is None:
+        points = half * np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+    along = points @ v
+    across = np.sqrt(np.maximum(np.einsum("ij,ij->i", points, points) - along**2, 0.0))
+    return float(np.max(across / np.tan(half_angle) + along))
+
+
+def _hull_points(scene: RenderScene, target_id: int, object_from_world: np.ndarray) -> np.ndarray | None:
+    """The target's convex-hull vertices in its object frame (None without a mesh)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    verts = [np.asarray(m.vertices, dtype=np.float64).reshape(-1, 3) for m in scene.meshes
+             if m.instance_id == target_id]
+    if not verts:
+        return None
+    pts = np.concatenate(verts) @ object_from_world[:3, :3].T + object_from_world[:3, 3]
+    try:
+        return pts[ConvexHull(pts).vertices]
+    except QhullError:  # flat or degenerate: all points
+        return pts
 
 
 def orbit(
@@ -178,7 +214,8 @@ def orbit(
     aspect: float = 0.75,
     fill: float = 1.0,
 ) -> list[np.ndarray]:
-    """Views around one object that fill a large part of the frame.
+    """Views around one object that fill a large part of the frame (its silhouette, as seen from each view,
+    spans ``fill`` of the shorter field of view, the distance then times 0.85-1.1).
 
     ``support`` (default: the instance's own) shapes the orbit: ``floor``/``surface``/``none`` go 360 degrees
     around at elevations 10-60 degrees; ``wall`` stays within +-70 degrees of the front (+y) at -20-45
@@ -193,7 +230,6 @@ def orbit(
     world_from_object = np.asarray(info.world_from_object, dtype=np.float64)
     extents = np.asarray(info.extents, dtype=np.float64)
     centre_obj = np.array([0.0, 0.0, 0.5 * extents[2]])
-    base = orbit_distance(extents, hfov_deg, aspect, fill)
     t = np.arange(n_frames) / n_frames
     phase = rng.uniform(0.0, 2.0 * np.pi)
     if support == "wall":
@@ -216,12 +252,15 @@ def orbit(
             el_hi,
         )
     )
-    dist = base * rng.uniform(0.85, 1.1, n_frames)
+    scale = rng.uniform(0.85, 1.1, n_frames)
     radius = 0.5 * float(np.linalg.norm(extents))
+    hull = _hull_points(scene, target_id, np.linalg.inv(world_from_object))
+    points = None if hull is None else hull - centre_obj
     poses = []
     for i in range(n_frames):
         offset = np.array([np.sin(az[i]) * np.cos(el[i]), np.cos(az[i]) * np.cos(el[i]), np.sin(el[i])])
-        eye_obj = centre_obj + dist[i] * offset
+        distance = orbit_distance(extents, hfov_deg, aspect, fill, offset, points)
+        eye_obj = centre_obj + scale[i] * distance * offset
         target_obj = centre_obj + rng.normal(0.0, 0.05 * radius, 3)
         eye = world_from_object[:3, :3] @ eye_obj + world_from_object[:3, 3]
         target = world_from_object[:3, :3] @ target_obj + world_from_object[:3, 3]

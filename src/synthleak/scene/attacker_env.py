@@ -109,10 +109,11 @@ def compose_attacker(
     hall: tuple[ShellStyle, RoomShell] | None = None,
 ) -> SceneSpec:
     """The attacker stage of one object: hall shell, optional prop (pedestal / panel / canopy), the target."""
+    from synthleak.assets.materials import with_materials
     from synthleak.assets.variants import variant
 
     style, shell = hall if hall is not None else hall_shell(seed)
-    model = library[plan.model_id]
+    model = with_materials(library[plan.model_id], dict(plan.materials))
     v = variant(model, plan.variant_seed, plan.magnitude, plan.kinds)
     mesh = v.build()
     prop_rng = make_rng(seed, "attacker", plan.object_id, "props")

@@ -47,11 +47,27 @@ def _styles_digest() -> str:
     return digest.hexdigest()
 
 
+def _non_default(entry: Any) -> Any:
+    """Plain data of a plan dataclass without the fields left at their defaults (recursively), so a knob
+    added with a default that keeps the old behaviour keeps the old plans' keys."""
+    if dataclasses.is_dataclass(entry):
+        out = {}
+        for f in dataclasses.fields(entry):
+            value = getattr(entry, f.name)
+            if f.default is not dataclasses.MISSING and value == f.default:
+                continue
+            out[f.name] = _non_default(value)
+        return out
+    if isinstance(entry, list | tuple):
+        return [_non_default(v) for v in entry]
+    return entry
+
+
 def _plan_key(entry: Any, library: Mapping, model_ids: Sequence[str], seed: int) -> str:
     payload = {
         "format": STAGE_FORMAT,
         "seed": seed,
-        "plan": dataclasses.asdict(entry),
+        "plan": _non_default(entry),
         "models": _model_digest(library, model_ids),
         "styles": _styles_digest(),
     }
@@ -80,6 +96,20 @@ def _load_old_index(out_dir: Path) -> dict[str, Any]:
         return {}
 
 
+def _instance_entry(placed) -> dict[str, Any]:
+    """index.json entry of one placed instance (``skus``: slot -> shared SKU id, only when it uses any)."""
+    entry = {
+        "instance_id": placed.instance_id,
+        "model_id": placed.model_id,
+        "name": placed.name,
+        "category": placed.category,
+        "support": placed.support,
+        "variant": placed.variant_params,
+    }
+    skus = placed.variant_params.get("materials", {})
+    return entry | ({"skus": dict(skus)} if skus else {})
+
+
 def _room_entry(plan: RoomPlan, library: Mapping, out_dir: Path) -> dict[str, Any]:
     from synthleak.scene.compose import compose_room
 
@@ -87,38 +117,32 @@ def _room_entry(plan: RoomPlan, library: Mapping, out_dir: Path) -> dict[str, An
     path = out_dir / f"{plan.name}.usda"
     write_stage(spec, path)
     by_id = {o.instance_id: o for o in spec.objects}
-    objects = []
+    kinds: dict[str, list[dict[str, Any]]] = {"selected": [], "distractor": []}
     for obj in plan.objects:
         placed = by_id.get(obj.instance_id)
-        if placed is None:
-            continue
-        objects.append(
-            {
-                "instance_id": obj.instance_id,
-                "model_id": obj.model_id,
-                "name": obj.name,
-                "category": placed.category,
-                "support": placed.support,
-                "variant": placed.variant_params,
-            }
-        )
+        if placed is not None:
+            kinds[obj.kind].append(_instance_entry(placed))
     dropped = [
         {"instance_id": o.instance_id, "model_id": o.model_id}
         for o in plan.objects
         if o.instance_id not in by_id
     ]
-    return {
+    entry = {
         "name": plan.name,
         "stage": path.name,
         "size": list(plan.size),
         "style": spec.metadata["style"],
         "seed": plan.seed,
         "lights": len(spec.lights),
-        "objects": objects,
+        "objects": kinds["selected"],
         "dropped": dropped,
         "supported_by": spec.metadata["supported_by"],
         "sha256": _sha256(path),
     }
+    props = [_instance_entry(o) for o in spec.objects if o.role == "prop"]
+    if kinds["distractor"] or props or plan.layout != "scatter":  # the clean world's index keeps its bytes
+        entry |= {"distractors": kinds["distractor"], "props": props, "layout": plan.layout}
+    return entry
 
 
 def _attacker_entry(plan: AttackerPlan, library: Mapping, seed: int, out_dir: Path, hall_cache: list) -> dict:
@@ -130,7 +154,7 @@ def _attacker_entry(plan: AttackerPlan, library: Mapping, seed: int, out_dir: Pa
     path = out_dir / plan.stage
     write_stage(spec, path)
     target = next(o for o in spec.objects if o.instance_id == ATTACKER_TARGET_ID)
-    return {
+    entry = {
         "id": plan.object_id,
         "model_id": plan.model_id,
         "category": target.category,
@@ -140,6 +164,7 @@ def _attacker_entry(plan: AttackerPlan, library: Mapping, seed: int, out_dir: Pa
         "variant": target.variant_params,
         "sha256": _sha256(path),
     }
+    return entry | ({"skus": dict(plan.materials)} if plan.materials else {})
 
 
 def _progress(enabled: bool) -> Progress:
@@ -172,6 +197,11 @@ def _run(
             out[name] = entry
             bar.advance(task_id)
     return out
+
+
+def _hard(scenes) -> bool:
+    """Any hard-world knob set (the clean world's index.json keeps its bytes)."""
+    return bool(scenes.material_sharing or max(scenes.distractors) or scenes.clutter or scenes.layout != "scatter")
 
 
 def write_study_stages(
@@ -248,6 +278,8 @@ def write_study_stages(
         if plan.attackers
         else list(sc.attacker_variant_kinds),
         "distinct_objects": len(plan.attackers),
+        **({"material_sharing": sc.material_sharing, "distractors": list(sc.distractors), "clutter": sc.clutter,
+            "layout": sc.layout} if _hard(sc) else {}),
         "rooms": [rooms[r.name] for r in plan.rooms],
         "attacker_objects": [attackers[a.object_id] for a in plan.attackers],
     }

@@ -6,6 +6,13 @@ each appears in at least one room and the spare slots repeat already selected mo
 models appear in exactly one room (as in the paper: 7 rooms, 4-10 objects each, 38 distinct objects).
 Rooms that get surface objects (vases, lamps...) also get a piece of furniture with a support surface.
 Every selected model gets one attacker object: its variant with seed ``derive_seed(seed, "attacker", model)``.
+
+The hard world (``[scenes]`` knobs, all off by default): ``material_sharing`` gives model slots shared catalogue
+SKUs (:func:`synthleak.assets.materials.assign_materials`, one assignment per model and study seed, so a room's
+instance and the attacker's variant of a model use the same SKUs); ``distractors = [min, max]`` adds per room
+furniture models that are never attacker objects, drawn from the selected models' categories and from models
+sharing their SKUs (look-alike products); ``clutter`` and ``layout`` are handed to the composer. Distractors use
+their own random streams, so a study without them is drawn exactly as before.
 """
 
 from __future__ import annotations
@@ -22,6 +29,11 @@ from synthleak.seeding import derive_seed, make_rng
 
 FIRST_OBJECT_ID = 100
 """Furniture instance ids start here (shell pieces use 1..99)."""
+FIRST_DISTRACTOR_ID = 300
+"""Distractor instance ids start here."""
+FIRST_PROP_ID = 1000
+"""Clutter prop instance ids start here (instance masks are 16-bit)."""
+OBJECT_KINDS = ("selected", "distractor", "prop")
 ATTACKER_TARGET_ID = 100
 """Instance id of the photographed object in every attacker stage."""
 
@@ -33,6 +45,10 @@ class ObjectPlan:
     instance_id: int
     model_id: str
     variant_seed: int
+    kind: str = "selected"
+    """``selected`` (a variant of an attacker object: "present") or ``distractor`` (never an attacker object)."""
+    materials: tuple[tuple[str, str], ...] = ()
+    """(slot, SKU id) of the slots that use shared catalogue SKUs."""
 
     @property
     def name(self) -> str:
@@ -50,6 +66,12 @@ class RoomPlan:
     lights: int
     objects: tuple[ObjectPlan, ...]
     magnitude: float
+    material_sharing: float = 0.0
+    """Probability that a clutter prop's slot uses a shared SKU (furniture SKUs are in ``objects``)."""
+    study_seed: int = 0
+    """The study seed of the props' material assignment (0 without material sharing)."""
+    clutter: float = 0.0
+    layout: str = "scatter"
 
 
 @dataclass(frozen=True)
@@ -61,6 +83,7 @@ class AttackerPlan:
     variant_seed: int
     magnitude: float
     kinds: tuple[str, ...]
+    materials: tuple[tuple[str, str], ...] = ()
 
     @property
     def stage(self) -> str:
@@ -90,13 +113,21 @@ def _offers_support(model) -> bool:
     return bool(build_model(model, None, textures)[1])
 
 
+def is_prop(model) -> bool:
+    """True for clutter props (``role = "prop"``), which are never selected, distractors or attacker objects."""
+    return getattr(model, "role", "furniture") == "prop"
+
+
 def _pool(config: StudyConfig, library: Mapping) -> list[str]:
     wanted = list(config.scenes.models)
     if not wanted:
-        return sorted(library)
+        return sorted(m for m in library if not is_prop(library[m]))
     unknown = [m for m in wanted if m not in library]
     if unknown:
         raise ConfigError(f"scenes.models: unknown model id(s) {unknown} (library has {len(library)} models)")
+    props = [m for m in wanted if is_prop(library[m])]
+    if props:
+        raise ConfigError(f"scenes.models: {props} are clutter props, not furniture that can be attacked")
     return sorted(set(wanted))
 
 
@@ -228,6 +259,9 @@ def plan_study(
         rooms_models = _assign_hosts_only(rooms_models, hosts, needs_host, rng)
 
     magnitude = float(sc.scene_variant_magnitude)
+    sharing = float(sc.material_sharing)
+    materials = _materials_of(library, seed, sharing)
+    selected_models = sorted({m for models in rooms_models for m in models})
     rooms: list[RoomPlan] = []
     present_in: dict[str, dict[str, int]] = {}
     for i, models in enumerate(rooms_models):
@@ -240,19 +274,66 @@ def plan_study(
         for j, model_id in enumerate(sorted(models)):
             iid = FIRST_OBJECT_ID + j
             objects.append(
-                ObjectPlan(iid, model_id, derive_seed(seed, "scenes", name, "object", iid, model_id))
+                ObjectPlan(iid, model_id, derive_seed(seed, "scenes", name, "object", iid, model_id),
+                           materials=materials(model_id))
             )
             present_in.setdefault(model_id, {})[name] = iid
+        picks = draw_distractors(library, selected_models, materials, sc.distractors,
+                                 make_rng(seed, "scenes", name, "distractors"))
+        for j, model_id in enumerate(picks):
+            iid = FIRST_DISTRACTOR_ID + j
+            objects.append(ObjectPlan(iid, model_id, derive_seed(seed, "scenes", name, "object", iid, model_id),
+                                      kind="distractor", materials=materials(model_id)))
         rooms.append(
-            RoomPlan(name, derive_seed(seed, "scenes", name), size, style, lights, tuple(objects), magnitude)
+            RoomPlan(name, derive_seed(seed, "scenes", name), size, style, lights, tuple(objects), magnitude,
+                     material_sharing=sharing, study_seed=seed if sharing > 0 else 0, clutter=float(sc.clutter),
+                     layout=sc.layout)
         )
     kinds = tuple(attacker_kinds if attacker_kinds is not None else sc.attacker_variant_kinds)
     a_mag = float(sc.attacker_variant_magnitude if attacker_magnitude is None else attacker_magnitude)
     attackers = [
-        AttackerPlan(f"a{k:02d}_{model_id}", model_id, derive_seed(seed, "attacker", model_id), a_mag, kinds)
+        AttackerPlan(f"a{k:02d}_{model_id}", model_id, derive_seed(seed, "attacker", model_id), a_mag, kinds,
+                     materials(model_id))
         for k, model_id in enumerate(sorted(present_in))
     ]
     return StudyPlan(seed, rooms, attackers, present_in)
+
+
+def _materials_of(library: Mapping, seed: int, sharing: float):
+    """model id -> its (slot, SKU) pairs that use shared SKUs (memoised; empty without sharing)."""
+    from synthleak.assets.materials import UNIQUE, assign_materials
+
+    @functools.cache
+    def materials(model_id: str) -> tuple[tuple[str, str], ...]:
+        if sharing <= 0.0:
+            return ()
+        assignment = assign_materials(library[model_id], seed, sharing)
+        return tuple((slot, sku) for slot, sku in sorted(assignment.items()) if sku != UNIQUE)
+
+    return materials
+
+
+def draw_distractors(library: Mapping, selected: Sequence[str], materials, count: tuple[int, int],
+                     rng: np.random.Generator) -> list[str]:
+    """Distractor model ids for one room: furniture that is never an attacker object, drawn without
+    replacement from look-alikes of the selected models (their categories, or sharing one of their SKUs);
+    the rest of the library only when look-alikes run out. A distractor that does not fit the room (a vase
+    without a table to stand on) is dropped by the composer, as any object."""
+    lo, hi = count
+    if hi <= 0:
+        return []
+    n = int(rng.integers(lo, hi + 1))
+    chosen = set(selected)
+    categories = {library[m].category for m in selected}
+    skus = {sku for m in selected for _, sku in materials(m)}
+    free = [m for m in sorted(library) if m not in chosen and not is_prop(library[m])]
+    alike = [m for m in free if library[m].category in categories or skus & {s for _, s in materials(m)}]
+    others = [m for m in free if m not in alike]
+    picks: list[str] = []
+    for group in (alike, others):
+        order = [group[i] for i in rng.permutation(len(group))]
+        picks += order[: n - len(picks)]
+    return sorted(picks)
 
 
 def _assign_hosts_only(

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from synthleak.errors import SynthleakError
 from synthleak.paths import scenes_usd_dir
 
 Colour = tuple[float, float, float]
@@ -21,7 +22,7 @@ SURFACES = ("floor", "wall", "ceiling", "door", "backdrop")
 EXTRA_SURFACES = ("pedestal", "panel")
 
 
-class StyleError(ValueError):
+class StyleError(SynthleakError, ValueError):
     """A style template that cannot be used; the message names the file and the field."""
 
 

@@ -30,16 +30,13 @@ import numpy as np
 from pxr import Gf, Kind, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdValidation, Vt
 
 from synthleak.assets.mesh import ObjectMesh, TexturedPart
+from synthleak.errors import StageError
 from synthleak.render.base import InstanceInfo, RenderMesh, RenderScene
 from synthleak.scene.spec import Light, PlacedObject, SceneSpec
 from synthleak.scene.texture_store import load_texture, store_texture
 
 NS = "synthleak:"
 _DEFAULT_COLOUR = (0.7, 0.7, 0.7)
-
-
-class StageError(ValueError):
-    """A stage that cannot be read; the message names the file and, where known, the prim."""
 
 
 # ----------------------------------------------------------------------------------------------- writing
@@ -307,6 +304,15 @@ def _to_world(rot: np.ndarray, scale: float, usd_pose: Gf.Matrix4d) -> np.ndarra
     return out
 
 
+def _to_object(rot: np.ndarray, scale: float, usd_pose: Gf.Matrix4d) -> np.ndarray:
+    """``world_from_object`` of an instance prim: :func:`_to_world`, with the object's own axes converted to
+    +z up as well, so that an instance of a Y-up stage has +z up in its object frame (its extents are
+    [width, depth, height] and attacker orbits circle its vertical axis, as for synthleak's own objects)."""
+    pose = _to_world(rot, scale, usd_pose)
+    pose[:3, :3] = pose[:3, :3] @ rot.T
+    return pose
+
+
 def _triangulate(counts: np.ndarray, indices: np.ndarray, left_handed: bool) -> np.ndarray:
     """Fan triangulation; returns (T, 3) positions into the face-vertex (corner) list."""
     counts = np.asarray(counts, dtype=np.int64)
@@ -472,6 +478,7 @@ class _Reader:
         rel, _ = self.cache.ComputeRelativeTransform(mesh_prim, instance_prim)
         object_from_mesh = np.array(rel, dtype=np.float64).T
         object_from_mesh[:3, 3] *= self.scale
+        object_from_mesh[:3] = self.rot @ object_from_mesh[:3]  # the object frame is +z up too (see _to_object)
         name = _attr(mesh_prim, "partName") or mesh_prim.GetName()
         return _Part(
             prim_path=str(mesh_prim.GetPath()),
@@ -562,7 +569,7 @@ class _Reader:
                 iid = int(prim.GetAttribute(NS + "instanceId").Get())
             else:
                 iid, next_id = next_id, next_id + 1
-            pose = _to_world(self.rot, self.scale, self.cache.GetLocalToWorldTransform(prim))
+            pose = _to_object(self.rot, self.scale, self.cache.GetLocalToWorldTransform(prim))
             attrs = {
                 name: _attr(prim, name)
                 for name in (

@@ -205,6 +205,11 @@ class PartBuilder:
             prim.extrude(self._name(mat), outline, thickness, self._slot(mat).texture, **self._kw(mat, kw)),
         )
 
+    def tube(self, mat: str, path, radius, **kw) -> TexturedPart:
+        return self._add(
+            mat, prim.tube(self._name(mat), path, radius, self._slot(mat).texture, **self._kw(mat, kw))
+        )
+
     def surface(self, z: float, x_min: float, x_max: float, y_min: float, y_max: float) -> None:
         """Record a horizontal support top (builder frame; shifted with the re-centring)."""
         self.surfaces.append(SupportSurface(float(z), float(x_min), float(x_max), float(y_min), float(y_max)))
