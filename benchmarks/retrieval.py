@@ -39,11 +39,109 @@ from synthleak.config import LocalizeConfig
 from synthleak.geometry.poses import camera_centre, rotation_error_deg
 from synthleak.localize.features import Features
 from synthleak.localize.localizer import Localizer
-from synthleak.localize.retrieval import BowIndex, BowParams, VoteIndex, as_float
+from synthleak.localize.matching import squared_l2
+from synthleak.localize.retrieval import BowIndex, BowParams, VocabularyTree, as_float
 from synthleak.localize.visibility import read_image_instances, retrieved_sees
 from synthleak.render.base import Camera
 from synthleak.render.dataset import load_sequence
 from synthleak.study import load_features, load_index, read_query_log
+
+
+class VoteIndex:
+    """Approximate nearest-neighbour voting: each query descriptor is compared with the map descriptors (with
+    a 3D point) that share one of its ``assign`` nearest vocabulary words; if its nearest one passes the ratio
+    test against the nearest of another 3D point, every map image observing that point gets a vote."""
+
+    def __init__(self, tree: VocabularyTree, data: np.ndarray, point: np.ndarray, word_start: np.ndarray,
+                 point_images: list[np.ndarray], num_images: int, binary: bool, ratio: float, assign: int) -> None:
+        self.tree, self.data, self.point, self.word_start = tree, data, point, word_start
+        self.point_images, self.num_images, self.binary = point_images, num_images, binary
+        self.ratio, self.assign = ratio, assign
+
+    @classmethod
+    def build(cls, features: list[Features], point_index: list[np.ndarray], params: BowParams | None = None,
+              ratio: float = 0.8, assign: int = 1, tree: VocabularyTree | None = None) -> VoteIndex:
+        """``features``/``point_index``: every map image's keypoints and their 3D point (-1: none)."""
+        params = params or BowParams()
+        keep = [np.nonzero(idx >= 0)[0] for idx in point_index]
+        data = np.concatenate([as_float(f.subset(k)) for f, k in zip(features, keep, strict=True)])
+        point = np.concatenate([idx[k] for idx, k in zip(point_index, keep, strict=True)])
+        image = np.concatenate([np.full(len(k), i) for i, k in enumerate(keep)])
+        if tree is None:
+            rng = np.random.default_rng(params.seed)
+            sample = data if len(data) <= params.sample else data[np.sort(
+                rng.choice(len(data), params.sample, replace=False))]
+            tree = VocabularyTree.train(sample, params.branching, params.depth, params.iterations, rng)
+        words = tree.words(data)
+        order = np.argsort(words, kind="stable")
+        word_start = np.searchsorted(words[order], np.arange(tree.num_words + 1))
+        num_points = int(point.max()) + 1 if len(point) else 0
+        by_point = np.argsort(point, kind="stable")
+        bounds = np.searchsorted(point[by_point], np.arange(num_points + 1))
+        point_images = [np.unique(image[by_point[bounds[p]:bounds[p + 1]]]) for p in range(num_points)]
+        binary = bool(features[0].binary) if features else False
+        return cls(tree, data[order], point[order], word_start, point_images, len(features), binary, ratio,
+                   assign)
+
+    def _leaves(self, x: np.ndarray) -> np.ndarray:
+        """(N, assign) leaves: the greedy path to the last level, then its ``assign`` nearest children."""
+        node = np.zeros(len(x), np.int64)
+        for level in self.tree.centres[:-1]:
+            node = self.tree._descend(level, node, x, self.tree.branching)
+        b, last = self.tree.branching, self.tree.centres[-1]
+        out = np.empty((len(x), self.assign), np.int64)
+        for n in np.unique(node):
+            idx = np.nonzero(node == n)[0]
+            d = squared_l2(x[idx], last[n * b:(n + 1) * b])
+            out[idx] = n * b + np.argsort(d, axis=1, kind="stable")[:, :self.assign]
+        return out
+
+    def matches(self, features: Features) -> np.ndarray:
+        """(M, 2) ``(query keypoint, 3D point)``: the nearest map descriptor among the query descriptor's words,
+        kept if closer than ``ratio`` times the nearest descriptor of another 3D point (none: kept)."""
+        if not len(features) or not len(self.data):
+            return np.zeros((0, 2), np.int64)
+        x = as_float(features)
+        leaves = self._leaves(x)
+        n = len(x)
+        d1, d2 = np.full(n, np.inf), np.full(n, np.inf)
+        p1 = np.full(n, -1, np.int64)
+        for slot in range(self.assign):
+            w = leaves[:, slot]
+            s1, s2, sp = np.full(n, np.inf), np.full(n, np.inf), np.full(n, -1, np.int64)
+            order = np.argsort(w, kind="stable")
+            bounds = np.searchsorted(w[order], np.unique(w))
+            for qi in np.split(order, bounds[1:]):
+                word = w[qi[0]]
+                lo, hi = self.word_start[word], self.word_start[word + 1]
+                if lo == hi:
+                    continue
+                d = np.maximum(squared_l2(x[qi], self.data[lo:hi]), 0.0)
+                pts = self.point[lo:hi]
+                nn = np.argmin(d, axis=1)
+                rows = np.arange(len(qi))
+                s1[qi], sp[qi] = d[rows, nn], pts[nn]
+                s2[qi] = np.where(pts[None, :] == pts[nn][:, None], np.inf, d).min(axis=1)
+            # merge this slot's (s1, sp, s2) into the running (d1, p1, d2)
+            same = sp == p1
+            better = s1 < d1
+            new_d2 = np.where(better, np.where(same, np.minimum(s2, d2), np.minimum(s2, d1)),
+                              np.where(same, np.minimum(d2, s2), np.minimum(d2, s1)))
+            d1, p1, d2 = np.where(better, s1, d1), np.where(better, sp, p1), new_d2
+        r = self.ratio if self.binary else self.ratio ** 2
+        ok = np.nonzero((p1 >= 0) & (d1 < r * d2))[0]
+        return np.stack([ok, p1[ok]], axis=1).astype(np.int64)
+
+    def scores(self, features: Features) -> np.ndarray:
+        """Votes per map image: the matched 3D points it observes."""
+        votes = np.zeros(self.num_images, np.float64)
+        for p in self.matches(features)[:, 1]:
+            votes[self.point_images[p]] += 1.0
+        return votes
+
+    def query(self, features: Features, top_k: int) -> np.ndarray:
+        score = self.scores(features)
+        return np.lexsort((np.arange(len(score)), -score))[:top_k]
 
 
 class LegacyBow:

@@ -291,8 +291,10 @@ def test_recall_funnel_counts_each_step() -> None:
     (funnel,) = recall_funnel(rows)
     assert funnel["present pairs"] == 3 and funnel["object in map"] == 2 and funnel["median map points"] == 80
     assert funnel["a query localized"] == 2 and funnel["localized on the object"] == 1
-    assert funnel["queries retrieving the object"] == "14/30"
-    assert funnel["queries localized"] == "6/30" and funnel["decided present (alg1, 10°, 0.25m)"] == 1
-    assert "| sift | 3 | 2 | 80 | 2 | 1 | 14/30 | 6/30 | 1 |" in recall_funnel_markdown(rows)
-    unknown = [{**r, "n_retrieved_target": None} for r in rows]  # a remote server: the step is unknown
-    assert recall_funnel(unknown)[0]["queries retrieving the object"] == "–"
+    assert funnel["decided present (alg1, 10°, 0.25m)"] == 1
+    # the queries: 30 sent, 14 retrieve a map image seeing the object, 6 localized, 3 mostly on it
+    assert (funnel["queries sent"], funnel["retrieved images see the object"], funnel["queries localized"],
+            funnel["queries on the object"]) == (30, 14, 6, 3)
+    assert "| sift | 3 | 2 | 80 | 2 | 1 | 1 | 30 | 14 | 6 | 3 |" in recall_funnel_markdown(rows)
+    unknown = [{**r, "n_retrieved_target": None} if r["object"] == "b" else r for r in rows]  # one unknown
+    assert recall_funnel(unknown)[0]["retrieved images see the object"] == "–"

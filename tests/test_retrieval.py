@@ -64,8 +64,11 @@ def test_top_k_holds_the_map_image_the_query_was_taken_next_to(scene, box_map):
         assert result.retrieved == sorted(retrieved)  # the result names what it matched against
 
 
+@pytest.mark.parametrize("box_map", ["sift"], indirect=True)
 def test_a_close_up_retrieves_a_map_image_that_sees_the_object(quads, scene, box_map):
-    """An attacker-like query (one box filling the view) retrieves a map image where that box is visible."""
+    """An attacker-like query (one box filling the view) retrieves a map image where that box is visible.
+    SIFT only: a bag of ORB's bits ranks the images seeing one of the boxes 8th-15th of 24 here (k-means on
+    0/1 bits makes poor words; docs/retrieval.md), so ORB's top 3 can miss it."""
     tier, map_dir = box_map
     visible = read_image_instances(map_dir)
     loc = Localizer.load(map_dir, CONFIG)
@@ -178,5 +181,7 @@ def test_ci_tiny_retrieval_keeps_the_exhaustive_localizations(ci_tiny_study):
                 exhaustive += full
                 retrieval += q["success"]
                 both += full and q["success"]
+    print(f"ci-tiny attacker queries localized: exhaustive {exhaustive}, {config.localize.retrieval} top "
+          f"{config.localize.top_k} {retrieval}, both {both}")
     assert exhaustive >= 10, exhaustive  # enough localized attacker queries for the ratio to mean something
     assert both >= 0.9 * exhaustive, (both, retrieval, exhaustive)

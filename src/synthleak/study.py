@@ -802,6 +802,10 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         "## Presence per object (paper appendix table shape)\n",
         table2_markdown(rows),
         "## Where presence is lost (GT-present pairs, server side)\n",
+        "Pairs, then their attacker queries step by step. *Retrieved images see the object*: a retrieved map "
+        "image shows the room's instance on at least 0.5 % of its pixels (GT masks); a query lost before this "
+        "step is the retrieval's miss, one lost between it and *queries localized* is matching's or PnP's "
+        "(\"–\": unknown, e.g. a remote server). *On the object*: most PnP inliers on the room's instance.\n",
         recall_funnel_markdown(rows),
         "## Where false presence comes from (GT-absent pairs, server side)\n",
         "Absent pairs by what the room holds: an instance sharing a material SKU with the queried object "

@@ -274,9 +274,11 @@ def _plain(value: Any) -> Any:
 def recall_funnel(rows: Sequence[dict]) -> list[dict[str, Any]]:
     """Per tier, the GT-present pairs step by step: the object has 3D points in the room's map, at least one
     attacker query localizes, one localizes with most PnP inliers on the object, the pair is decided present
-    (first aligner and thresholds of the rows); and over their queries: those whose retrieved map images see
-    the room's instance of the object (``n_retrieved_target``; "–" where unknown, e.g. a remote server), and
-    those localized. Rows of variant sweeps (``magnitude`` set) are left out."""
+    (first aligner and thresholds of the rows); then their queries step by step: sent, those whose retrieved
+    map images see the room's instance of the object (``n_retrieved_target``: a miss before it is the
+    retrieval's; "–" where unknown, e.g. a remote server), those localized (a miss between the two is matching
+    or PnP), those localized with most inliers on the object. Rows of variant sweeps (``magnitude`` set) are
+    left out."""
     main = [r for r in rows if r.get("present_gt") and r.get("magnitude") is None]
     if not main:
         return []
@@ -286,6 +288,7 @@ def recall_funnel(rows: Sequence[dict]) -> list[dict[str, Any]]:
     for (tier,), group in group_rows(main, ["tier"]).items():
         pairs = [r for r in group if (r["aligner"], r["delta_r_deg"], r["delta_t_m"]) == config]
         points = [r.get("map_points_on_target") for r in pairs]
+        sent = sum(r["n_queries"] for r in pairs)
         out.append({
             "tier": tier,
             "present pairs": len(pairs),
@@ -294,19 +297,21 @@ def recall_funnel(rows: Sequence[dict]) -> list[dict[str, Any]]:
                 p is not None for p in points) else math.nan,
             "a query localized": sum(1 for r in pairs if r["n_localized"] > 0),
             "localized on the object": sum(1 for r in pairs if (r.get("n_target_top") or 0) > 0),
-            "queries retrieving the object": _retrieving(pairs),
-            "queries localized": f"{sum(r['n_localized'] for r in pairs)}/{sum(r['n_queries'] for r in pairs)}",
             f"decided present ({config[0]}, {config[1]:g}°, {config[2]:g}m)": sum(1 for r in pairs if r["decision"]),
+            "queries sent": sent,
+            "retrieved images see the object": _retrieving(pairs),
+            "queries localized": sum(r["n_localized"] for r in pairs),
+            "queries on the object": sum(r.get("n_target_top") or 0 for r in pairs),
         })
     return out
 
 
-def _retrieving(pairs: Sequence[dict]) -> str:
-    """``"retrieving/sent"`` over the pairs whose ``n_retrieved_target`` is known, "–" if none is."""
-    known = [r for r in pairs if r.get("n_retrieved_target") is not None]
-    if not known:
+def _retrieving(pairs: Sequence[dict]) -> int | str:
+    """The queries whose retrieved map images see the object, summed over the pairs; "–" unless every pair's
+    ``n_retrieved_target`` is known."""
+    if not pairs or any(r.get("n_retrieved_target") is None for r in pairs):
         return "–"
-    return f"{sum(r['n_retrieved_target'] for r in known)}/{sum(r['n_queries'] for r in known)}"
+    return sum(r["n_retrieved_target"] for r in pairs)
 
 
 def recall_funnel_markdown(rows: Sequence[dict]) -> str:
