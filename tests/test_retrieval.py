@@ -67,8 +67,8 @@ def test_top_k_holds_the_map_image_the_query_was_taken_next_to(scene, box_map):
 @pytest.mark.parametrize("box_map", ["sift"], indirect=True)
 def test_a_close_up_retrieves_a_map_image_that_sees_the_object(quads, scene, box_map):
     """An attacker-like query (one box filling the view) retrieves a map image where that box is visible.
-    SIFT only: a bag of ORB's bits ranks the images seeing one of the boxes 8th-15th of 24 here (k-means on
-    0/1 bits makes poor words; docs/retrieval.md), so ORB's top 3 can miss it."""
+    SIFT only: a bag of ORB's bits ranks the first image seeing one of the boxes 6th of 24 here (k-means on 0/1
+    bits makes poor words; docs/retrieval.md), so ORB's top 3 misses it."""
     tier, map_dir = box_map
     visible = read_image_instances(map_dir)
     loc = Localizer.load(map_dir, CONFIG)
