@@ -181,7 +181,27 @@ def test_ci_tiny_retrieval_keeps_the_exhaustive_localizations(ci_tiny_study):
                 exhaustive += full
                 retrieval += q["success"]
                 both += full and q["success"]
-    print(f"ci-tiny attacker queries localized: exhaustive {exhaustive}, {config.localize.retrieval} top "
-          f"{config.localize.top_k} {retrieval}, both {both}")
     assert exhaustive >= 10, exhaustive  # enough localized attacker queries for the ratio to mean something
     assert both >= 0.9 * exhaustive, (both, retrieval, exhaustive)
+
+
+def test_ci_tiny_funnel_counts_queries_whose_retrieval_sees_the_object(ci_tiny_study):
+    """The study's results and report carry the funnel step, recomputed here from the query log and the GT masks
+    of the map images (``image_instances.json``)."""
+    from synthleak.study import load_index, read_query_log
+
+    index = load_index(ci_tiny_study / "dataset")
+    rows = [r for r in json.loads((ci_tiny_study / "results" / "results.json").read_text())
+            if r["present_gt"] and r.get("magnitude") is None]
+    assert rows
+    for r in rows:
+        map_dir = ci_tiny_study / "maps" / r["tier"] / r["room"]
+        visible = read_image_instances(map_dir)
+        gt_id = next(o for o in index["attacker_objects"] if o["id"] == r["object"])["present_in"][r["room"]]
+        log = [q for q in read_query_log(ci_tiny_study / "queries" / r["tier"] / r["room"] / "queries.jsonl")
+               if not q["genuine"] and q["attacker_object"] == r["object"]]
+        assert r["n_retrieved_target"] == sum(retrieved_sees(q["retrieved"], gt_id, visible) for q in log)
+        assert r["n_localized"] <= r["n_queries"] == len(log)
+    assert sum(r["n_retrieved_target"] for r in rows) > 0
+    report = (ci_tiny_study / "report.md").read_text()
+    assert "retrieved images see the object" in report
