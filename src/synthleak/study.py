@@ -760,6 +760,7 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
     """``report.md`` with the paper-shaped tables, placement and defense figures, and the plots."""
     from synthleak.evaluate.absent_pairs import absent_funnel_markdown, presence_by_absent_kind_markdown
     from synthleak.evaluate.defense_sweep import defense_tradeoff
+    from synthleak.evaluate.paper_reference import tier_ordering_markdown
     from synthleak.evaluate.plots import plot_defense_tradeoff, plot_placement_cdfs, plot_presence_pr
     from synthleak.evaluate.tables import (
         markdown_table,
@@ -799,6 +800,8 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
                                  "median_rot_err_deg", "median_trans_err_m"]),
         "## Presence (paper Table 1 shape)\n",
         table1_markdown(rows),
+        "## Tier ordering beside the paper's (Table 1)\n",
+        tier_ordering_markdown(rows),
         "## Presence per object (paper appendix table shape)\n",
         table2_markdown(rows),
         "## Where presence is lost (GT-present pairs, server side)\n",
