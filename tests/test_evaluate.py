@@ -258,31 +258,43 @@ def test_recall_funnel_counts_each_step() -> None:
     from synthleak.study import _server_funnel
 
     records = [  # one pair's query log: 3 sent, 2 localized, 1 of them mostly on instance 7
-        {"success": True, "inlier_instance_counts": {"7": 40, "3": 12}},
-        {"success": True, "inlier_instance_counts": {"3": 30, "7": 30}},  # tie: the lower id wins, not 7
-        {"success": False, "inlier_instance_counts": {}},
+        {"success": True, "inlier_instance_counts": {"7": 40, "3": 12}, "retrieved": ["m0", "m2"]},
+        {"success": True, "inlier_instance_counts": {"3": 30, "7": 30},  # tie: the lower id wins, not 7
+         "retrieved": ["m1"]},
+        {"success": False, "inlier_instance_counts": {}, "retrieved": ["m2", "m1"]},
     ]
-    assert _server_funnel(records, 7, {7: 120, 3: 50}, {}) == {"map_points_on_target": 120, "n_target_top": 1,
-                                                              "n_lookalike_top": None}
-    assert _server_funnel(records, 7, None, {}) == {"map_points_on_target": None, "n_target_top": 1,
-                                                   "n_lookalike_top": None}
+    visible = {"m0": {3}, "m1": {3}, "m2": {3, 7}}  # only m2 sees instance 7: queries 0 and 2 retrieve it
+    assert _server_funnel(records, 7, {7: 120, 3: 50}, {}, visible) == {
+        "map_points_on_target": 120, "n_retrieved_target": 2, "n_target_top": 1, "n_lookalike_top": None}
+    assert _server_funnel(records, 7, None, {}) == {"map_points_on_target": None, "n_retrieved_target": None,
+                                                   "n_target_top": 1, "n_lookalike_top": None}
     # an absent pair: the localized queries whose inliers lie mostly on a look-alike of the queried object
-    assert _server_funnel(records, None, {7: 1}, {3: "shares_sku"}) == {
-        "map_points_on_target": None, "n_target_top": None, "n_lookalike_top": 1}
-    assert _server_funnel(records, None, {7: 1}, {}) == {"map_points_on_target": None, "n_target_top": None,
-                                                        "n_lookalike_top": 0}
+    assert _server_funnel(records, None, {7: 1}, {3: "shares_sku"}, visible) == {
+        "map_points_on_target": None, "n_retrieved_target": None, "n_target_top": None, "n_lookalike_top": 1}
+    assert _server_funnel(records, None, {7: 1}, {})["n_lookalike_top"] == 0
+    remote = [{k: v for k, v in q.items() if k != "retrieved"} for q in records]  # a server names no images
+    assert _server_funnel(remote, 7, {7: 120}, {}, visible)["n_retrieved_target"] is None
+    with pytest.raises(ValueError, match="'m9' is not an image of this map"):
+        _server_funnel([{**records[0], "retrieved": ["m9"]}], 7, None, {}, visible)
 
-    def row(obj, present, points, localized, top, decision, aligner="alg1", magnitude=None):
+    def row(obj, present, points, localized, top, decision, aligner="alg1", magnitude=None, retrieved=None):
         return {"tier": "sift", "room": "r0", "object": obj, "aligner": aligner, "delta_r_deg": 10.0,
                 "delta_t_m": 0.25, "present_gt": present, "map_points_on_target": points, "n_queries": 10,
-                "n_localized": localized, "n_target_top": top, "decision": decision, "magnitude": magnitude}
+                "n_localized": localized, "n_target_top": top, "decision": decision, "magnitude": magnitude,
+                "n_retrieved_target": retrieved}
 
-    rows = [row("a", True, 300, 4, 3, True), row("b", True, 0, 0, 0, False), row("c", True, 80, 2, 0, False),
+    rows = [row("a", True, 300, 4, 3, True, retrieved=9), row("b", True, 0, 0, 0, False, retrieved=0),
+            row("c", True, 80, 2, 0, False, retrieved=5),
             row("d", False, None, 1, None, True),                     # absent pair: not counted
             row("a", True, 300, 4, 3, False, aligner="robust"),       # other aligner: not counted twice
             row("e", True, 50, 5, 5, True, magnitude=0.25)]           # variant sweep row: left out
     (funnel,) = recall_funnel(rows)
     assert funnel["present pairs"] == 3 and funnel["object in map"] == 2 and funnel["median map points"] == 80
     assert funnel["a query localized"] == 2 and funnel["localized on the object"] == 1
-    assert funnel["queries localized"] == "6/30" and funnel["decided present (alg1, 10°, 0.25m)"] == 1
-    assert "| sift | 3 | 2 | 80 | 2 | 1 | 6/30 | 1 |" in recall_funnel_markdown(rows)
+    assert funnel["decided present (alg1, 10°, 0.25m)"] == 1
+    # the queries: 30 sent, 14 retrieve a map image seeing the object, 6 localized, 3 mostly on it
+    assert (funnel["queries sent"], funnel["retrieved images see the object"], funnel["queries localized"],
+            funnel["queries on the object"]) == (30, 14, 6, 3)
+    assert "| sift | 3 | 2 | 80 | 2 | 1 | 1 | 30 | 14 | 6 | 3 |" in recall_funnel_markdown(rows)
+    unknown = [{**r, "n_retrieved_target": None} if r["object"] == "b" else r for r in rows]  # one unknown
+    assert recall_funnel(unknown)[0]["retrieved images see the object"] == "–"

@@ -279,6 +279,8 @@ class LocalizeConfig:
         "tiers": each(one_of(_tiers), nonempty=True),
         "retrieval": one_of(_retrieval_methods),
         "top_k": COUNT,
+        "bow_branching": at_least(2),
+        "bow_depth": COUNT,
         "max_keypoints": COUNT,
         "pnp_max_error_px": POSITIVE,
         "min_inliers": at_least(0),
@@ -288,8 +290,14 @@ class LocalizeConfig:
 
 
     tiers: list[str] = field(default_factory=lambda: ["sift"])
-    retrieval: str = "exhaustive"
-    top_k: int = 10
+    retrieval: str = "bow"
+    """``bow`` (vocabulary-tree bag of words, then the ``top_k`` map images) or ``exhaustive`` (every map image);
+    docs/retrieval.md has the measured recall against exhaustive matching and the cost per query."""
+    top_k: int = 40
+    bow_branching: int = 64
+    """Bag-of-words vocabulary tree: children per node ..."""
+    bow_depth: int = 2
+    """... and levels: up to ``bow_branching ** bow_depth`` words (see :mod:`synthleak.localize.retrieval`)."""
     max_keypoints: int = 4096
     pnp_max_error_px: float = 12.0
     min_inliers: int = 0

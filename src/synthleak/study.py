@@ -343,6 +343,8 @@ def query_task(task: QueryTask) -> list[str]:
             "inlier_instance_counts": {str(k): int(v) for k, v in
                                        sorted((getattr(result, "inlier_instance_counts", None) or {}).items())},
             **log_fields(result, task.defense),
+            # the map images matched (in process only: an HTTP answer names none, the funnel step stays unknown)
+            **({} if task.server_url else {"retrieved": list(result.retrieved)}),
         }, sort_keys=True))
     return lines
 
@@ -441,17 +443,22 @@ def _map_points_per_instance(map_dir: Path) -> dict[int, int] | None:
 
 
 def _server_funnel(records: list[dict[str, Any]], gt_id: int | None, points: dict[int, int] | None,
-                   lookalikes: dict[int, str]) -> dict[str, int | None]:
-    """Where a pair's queries go on the server. Present pairs: the map's 3D points on the room's instance and
-    the localized queries whose PnP inliers lie mostly on it; absent pairs: the localized queries whose
-    inliers lie mostly on a look-alike (an instance sharing a SKU or the category with the queried object)."""
+                   lookalikes: dict[int, str], visible: dict[str, set[int]] | None = None
+                   ) -> dict[str, int | None]:
+    """Where a pair's queries go on the server. Present pairs: the map's 3D points on the room's instance, the
+    queries whose retrieved map images see it (``visible``: the map's :mod:`~synthleak.localize.visibility`;
+    None where unknown) and the localized queries whose PnP inliers lie mostly on it; absent pairs: the
+    localized queries whose inliers lie mostly on a look-alike (an instance sharing a SKU or the category with
+    the queried object)."""
     from synthleak.evaluate.lookalikes import top_instance
+    from synthleak.localize.visibility import count_retrieving
 
     tops = [top_instance(q.get("inlier_instance_counts") or {}) for q in records if q["success"]]
     if gt_id is None:
-        return {"map_points_on_target": None, "n_target_top": None,
+        return {"map_points_on_target": None, "n_retrieved_target": None, "n_target_top": None,
                 "n_lookalike_top": sum(1 for t in tops if t in lookalikes)}
     return {"map_points_on_target": None if points is None else points.get(int(gt_id), 0),
+            "n_retrieved_target": count_retrieving(records, int(gt_id), visible),
             "n_target_top": sum(1 for t in tops if t == int(gt_id)), "n_lookalike_top": None}
 
 
@@ -467,6 +474,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
     from synthleak.evaluate.lookalikes import absent_kind, lookalike_ids
     from synthleak.evaluate.score import score_placement
     from synthleak.evaluate.tables import apply_presence_decisions
+    from synthleak.localize.visibility import read_image_instances
     from synthleak.render.dataset import load_sequence
 
     attacker_dataset = attacker_dataset or paths.dataset
@@ -479,6 +487,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
             q = without_defense(q) if undefended else q
             by_object.setdefault(name, {}).setdefault(q["attacker_object"], []).append(q)
     map_points = {name: _map_points_per_instance(paths.maps / name[0] / name[1]) for name in logs}
+    visible = {name: read_image_instances(paths.maps / name[0] / name[1]) for name in logs}
     rows: list[dict[str, Any]] = []
     for obj in index["attacker_objects"]:
         seq = load_sequence(attacker_dataset / "attackers" / obj["id"])
@@ -494,7 +503,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
             gt_id = obj.get("present_in", {}).get(room)
             gt = rooms[room].get(gt_id) if gt_id is not None else None
             funnel = _server_funnel(records, gt_id if gt is not None else None, map_points[(tier, room)],
-                                    lookalike_ids(obj, room_entries[room]))
+                                    lookalike_ids(obj, room_entries[room]), visible[(tier, room)])
             kind_of_pair = None if gt is not None else absent_kind(obj, room_entries[room])
             for aligner in config.attack.aligners:
                 alignments = [run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(local_sent))
@@ -840,6 +849,10 @@ def stage_report(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, An
         "## Presence per object (paper appendix table shape)\n",
         table2_markdown(rows),
         "## Where presence is lost (GT-present pairs, server side)\n",
+        "Pairs, then their attacker queries step by step. *Retrieved images see the object*: a retrieved map "
+        "image shows the room's instance on at least 0.5 % of its pixels (GT masks); a query lost before this "
+        "step is the retrieval's miss, one lost between it and *queries localized* is matching's or PnP's "
+        "(\"–\": unknown, e.g. a remote server). *On the object*: most PnP inliers on the room's instance.\n",
         recall_funnel_markdown(rows),
         "## Where false presence comes from (GT-absent pairs, server side)\n",
         "Absent pairs by what the room holds: an instance sharing a material SKU with the queried object "

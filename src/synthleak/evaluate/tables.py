@@ -26,10 +26,10 @@ from synthleak.evaluate.metrics import DEFAULT_THRESHOLDS
 
 COLUMNS: tuple[str, ...] = (
     "room", "object", "model_id", "category", "tier", "aligner", "delta_r_deg", "delta_t_m", "present_gt",
-    "eps", "decision", "n_queries", "n_no_local_pose", "n_localized", "n_target_top", "map_points_on_target",
-    "absent_kind", "n_lookalike_top", "rot_err_deg", "trans_err_m", "iou3d", "scene_from_object_est", "magnitude",
-    "kind", "decision_eps", "decision_clf", "clf_score", "clf_fallback", "second_eps", "rot_spread",
-    "trans_spread", "disagree_rot_deg", "disagree_trans_m",
+    "eps", "decision", "n_queries", "n_no_local_pose", "n_localized", "n_retrieved_target", "n_target_top",
+    "map_points_on_target", "absent_kind", "n_lookalike_top", "rot_err_deg", "trans_err_m", "iou3d",
+    "scene_from_object_est", "magnitude", "kind", "decision_eps", "decision_clf", "clf_score", "clf_fallback",
+    "second_eps", "rot_spread", "trans_spread", "disagree_rot_deg", "disagree_trans_m",
 )
 """Stable column order of the results files; extra keys follow, sorted."""
 
@@ -274,7 +274,11 @@ def _plain(value: Any) -> Any:
 def recall_funnel(rows: Sequence[dict]) -> list[dict[str, Any]]:
     """Per tier, the GT-present pairs step by step: the object has 3D points in the room's map, at least one
     attacker query localizes, one localizes with most PnP inliers on the object, the pair is decided present
-    (first aligner and thresholds of the rows). Rows of variant sweeps (``magnitude`` set) are left out."""
+    (first aligner and thresholds of the rows); then their queries step by step: sent, those whose retrieved
+    map images see the room's instance of the object (``n_retrieved_target``: a miss before it is the
+    retrieval's; "–" where unknown, e.g. a remote server), those localized (a miss between the two is matching
+    or PnP), those localized with most inliers on the object. Rows of variant sweeps (``magnitude`` set) are
+    left out."""
     main = [r for r in rows if r.get("present_gt") and r.get("magnitude") is None]
     if not main:
         return []
@@ -284,6 +288,7 @@ def recall_funnel(rows: Sequence[dict]) -> list[dict[str, Any]]:
     for (tier,), group in group_rows(main, ["tier"]).items():
         pairs = [r for r in group if (r["aligner"], r["delta_r_deg"], r["delta_t_m"]) == config]
         points = [r.get("map_points_on_target") for r in pairs]
+        sent = sum(r["n_queries"] for r in pairs)
         out.append({
             "tier": tier,
             "present pairs": len(pairs),
@@ -292,10 +297,21 @@ def recall_funnel(rows: Sequence[dict]) -> list[dict[str, Any]]:
                 p is not None for p in points) else math.nan,
             "a query localized": sum(1 for r in pairs if r["n_localized"] > 0),
             "localized on the object": sum(1 for r in pairs if (r.get("n_target_top") or 0) > 0),
-            "queries localized": f"{sum(r['n_localized'] for r in pairs)}/{sum(r['n_queries'] for r in pairs)}",
             f"decided present ({config[0]}, {config[1]:g}°, {config[2]:g}m)": sum(1 for r in pairs if r["decision"]),
+            "queries sent": sent,
+            "retrieved images see the object": _retrieving(pairs),
+            "queries localized": sum(r["n_localized"] for r in pairs),
+            "queries on the object": sum(r.get("n_target_top") or 0 for r in pairs),
         })
     return out
+
+
+def _retrieving(pairs: Sequence[dict]) -> int | str:
+    """The queries whose retrieved map images see the object, summed over the pairs; "–" unless every pair's
+    ``n_retrieved_target`` is known."""
+    if not pairs or any(r.get("n_retrieved_target") is None for r in pairs):
+        return "–"
+    return sum(r["n_retrieved_target"] for r in pairs)
 
 
 def recall_funnel_markdown(rows: Sequence[dict]) -> str:

@@ -33,8 +33,10 @@ class LocalizationResult:
     num_matches: int = 0
     inlier_instance_counts: dict[int, int] = field(default_factory=dict)
     defense: DefenseDecision | None = None
+    retrieved: list[str] = field(default_factory=list)
+    """Names of the map images the query was matched against (the retrieval's top k, or all), sorted."""
     timings: dict[str, float] = field(default_factory=dict)
-    """Seconds: ``features``, ``matching`` (retrieval + matching), ``pnp``, ``total``."""
+    """Seconds: ``features``, ``retrieval``, ``matching`` (retrieval + matching), ``pnp``, ``total``."""
     withheld_cam_from_world: np.ndarray | None = None
     """The pose PnP found for a query the enabled defense refused (server-side only: the HTTP answer is
     ``{"success": false}``); studies log it to attack the same queries with and without the defense."""
@@ -94,7 +96,8 @@ class Localizer:
         """The map's intrinsics (used when a query gives none)."""
         return self.data.camera
 
-    def _candidates(self, query: Features) -> np.ndarray:
+    def candidates(self, query: Features) -> np.ndarray:
+        """Indices of the map images the query is matched against, ascending: the retrieval's top k, or all."""
         if self._bow is None:
             return np.arange(len(self._db))
         return np.sort(self._bow.query(query, self.config.top_k))
@@ -119,28 +122,41 @@ class Localizer:
         result.timings |= {"features": t1 - t0, "total": time.perf_counter() - t0}
         return result
 
-    def localize_features(self, query: Features, camera: Camera | None = None) -> LocalizationResult:
+    def localize_features(self, query: Features, camera: Camera | None = None,
+                          candidates: np.ndarray | None = None) -> LocalizationResult:
         """Pose from the query's already extracted features (this map's tier and ``max_keypoints``): the same
-        result as :meth:`localize` on the image they came from, without extracting them again."""
+        result as :meth:`localize` on the image they came from, without extracting them again.
+        ``candidates`` (map image indices) replaces the retrieval (benchmarks compare retrievals with it)."""
         camera = camera or self.camera
         if query.image_size == (0, 0):
             query = replace(query, image_size=(camera.width, camera.height))
         t1 = time.perf_counter()
         if not len(query):  # a blank image: nothing to match
-            return LocalizationResult(False, timings={"features": 0.0, "matching": 0.0, "pnp": 0.0, "total": 0.0})
+            return LocalizationResult(False, timings={"features": 0.0, "retrieval": 0.0, "matching": 0.0,
+                                                      "pnp": 0.0, "total": 0.0})
+        if candidates is None:
+            candidates = self.candidates(query)
+        t_retrieval = time.perf_counter() - t1
+        corr = self.correspondences(query, candidates)
+        t2 = time.perf_counter()
+        result = self.pose_from_matches(query, corr, camera)
+        t3 = time.perf_counter()
+        result.timings = {"features": 0.0, "retrieval": t_retrieval, "matching": t2 - t1, "pnp": t3 - t2,
+                          "total": t3 - t1}
+        result.retrieved = sorted(self.data.names[int(i)] for i in candidates)
+        return result
+
+    def correspondences(self, query: Features, candidates: np.ndarray) -> np.ndarray:
+        """(M, 2) unique ``(query keypoint, map point)`` matches against the ``candidates`` map images, sorted."""
         pairs = set()
-        for i in self._candidates(query):
+        for i in candidates:
             db_features, db_points = self._db[i]
             m = self.matcher(query, db_features)
             pairs.update(zip(m[:, 0].tolist(), db_points[m[:, 1]].tolist(), strict=True))
-        corr = np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
-        t2 = time.perf_counter()
-        result = self._pnp(query, corr, camera)
-        t3 = time.perf_counter()
-        result.timings = {"features": 0.0, "matching": t2 - t1, "pnp": t3 - t2, "total": t3 - t1}
-        return result
+        return np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
 
-    def _pnp(self, query: Features, corr: np.ndarray, camera: Camera) -> LocalizationResult:
+    def pose_from_matches(self, query: Features, corr: np.ndarray, camera: Camera) -> LocalizationResult:
+        """RANSAC PnP on 2D-3D matches (``min_inliers``, ``max_error_px``), inlier instance counts, defense."""
         if len(corr) < max(self.min_inliers, 4):
             return LocalizationResult(False, num_matches=len(corr))
         cam = pycolmap.Camera(model="PINHOLE", width=camera.width, height=camera.height,

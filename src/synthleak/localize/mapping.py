@@ -17,10 +17,11 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
+from synthleak.atomic_io import atomic_write_text
 from synthleak.config import LocalizeConfig
 from synthleak.localize.features import Features
 from synthleak.localize.pairs import pairs_from_poses
-from synthleak.localize.retrieval import BowIndex
+from synthleak.localize.retrieval import BowIndex, BowParams
 from synthleak.localize.sequence import SequenceError, SequenceFiles, read_sequence
 from synthleak.localize.store import FORMAT_VERSION, camera_to_json
 from synthleak.localize.tiers import get_tier
@@ -30,6 +31,8 @@ from synthleak.localize.triangulation import (
     fundamental_from_poses,
     triangulate_track,
 )
+from synthleak.localize.visibility import FILE_NAME as IMAGE_INSTANCES_FILE
+from synthleak.localize.visibility import VISIBLE_MIN_FRACTION, image_instances_json
 from synthleak.progress import progress_bar
 
 EPIPOLAR_MAX_PX = 4.0
@@ -49,8 +52,20 @@ def inputs_hash(seq: SequenceFiles) -> str:
     return digest.hexdigest()
 
 
+def bow_params(config: LocalizeConfig) -> BowParams:
+    """The bag-of-words index a map is built with (every map has one, whatever ``config.retrieval``)."""
+    return BowParams(branching=config.bow_branching, depth=config.bow_depth)
+
+
+def _retrieval_meta(config: LocalizeConfig) -> dict:
+    """``map.json``'s ``retrieval``: what a server of this map retrieves with (the config's method and top k)
+    and the parameters of its ``bow.npz``."""
+    return {"method": config.retrieval, "top_k": config.top_k, "bow": bow_params(config).to_json()}
+
+
 def _map_settings(tier: str, config: LocalizeConfig, weights: dict) -> dict:
     settings = {"tier": tier, "max_keypoints": config.max_keypoints, "pairs_per_image": config.pairs_per_image,
+                "bow": bow_params(config).to_json(), "visible_min_fraction": VISIBLE_MIN_FRACTION,
                 "format_version": FORMAT_VERSION}
     if weights:  # learned tiers: new weights or a new definition (thresholds, budget), new map
         settings["weights_sha256"] = {k: v["sha256"] for k, v in weights.items()}
@@ -84,6 +99,9 @@ def build_map(
     if meta_path.is_file():
         old = json.loads(meta_path.read_text())
         if old.get("inputs_sha256") == digest and old.get("settings") == settings:
+            retrieval = _retrieval_meta(config)
+            if old.get("retrieval") != retrieval:  # query-time settings: recorded, no rebuild
+                atomic_write_text(meta_path, json.dumps(old | {"retrieval": retrieval}, indent=1))
             return out_dir
 
     extractor = tier_spec.make_extractor(config.max_keypoints, weights_dir)
@@ -120,7 +138,7 @@ def build_map(
             point_index[img][kp] = pid
 
     if out_dir.exists():
-        for name in ("sfm", "map.json"):
+        for name in ("sfm", "map.json", IMAGE_INSTANCES_FILE):
             target = out_dir / name
             shutil.rmtree(target) if target.is_dir() else target.unlink(missing_ok=True)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -136,13 +154,18 @@ def build_map(
     (out_dir / "points_instance.json").write_text(
         json.dumps({str(c): int(i) for c, i in zip(colmap_ids, instance, strict=True)})
     )
-    np.savez(out_dir / "bow.npz", **BowIndex.build(features).to_arrays())
+    bow = bow_params(config)
+    with_points = [f.subset(np.nonzero(idx >= 0)[0]) for f, idx in zip(features, point_index, strict=True)]
+    indexed = with_points if bow.points_only and any(len(f) for f in with_points) else features
+    np.savez(out_dir / "bow.npz", **BowIndex.build(indexed, bow).to_arrays())
+    (out_dir / IMAGE_INSTANCES_FILE).write_text(json.dumps(image_instances_json(names, masks), indent=0))
     meta = {
         "format_version": FORMAT_VERSION,
         "tier": tier,
         "sequence": str(sequence_dir),
         "inputs_sha256": digest,
         "settings": settings,
+        "retrieval": _retrieval_meta(config),
         "keypoint_budget": tier_spec.keypoint_budget(config.max_keypoints),
         "weights": weights,
         "camera": camera_to_json(seq.camera),

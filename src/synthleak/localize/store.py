@@ -1,12 +1,17 @@
 """On-disk map format (``map_dir/``) shared by mapping and localization.
 
-* ``map.json``: tier, inputs' content hash, config, camera, counts, format version;
+* ``map.json``: tier, inputs' content hash, config, camera, counts, format version, and ``retrieval``: the
+  method and ``top_k`` of the localize config it was last built or reused with, and the ``bow`` index's
+  parameters (:class:`synthleak.localize.retrieval.BowParams`);
 * ``features.npz``: per map image ``kp_<i>`` (N, 2), ``desc_<i>``, ``p3d_<i>`` (N,) index into the
   points (-1: none), plus ``names`` and ``binary``;
 * ``points.npz``: ``xyz`` (P, 3), ``instance`` (P,) majority GT instance id, ``error`` (px), ``track_length``,
   ``colmap_id`` (P,) the point's id in ``sfm/``;
 * ``points_instance.json``: ``{colmap point3D id: instance id}`` (server-only labels for the defense);
-* ``bow.npz``: bag-of-words retrieval index; ``sfm/``: the COLMAP model (binary) with the GT poses.
+* ``bow.npz``: bag-of-words retrieval index (vocabulary tree, idf, histograms);
+* ``image_instances.json``: per map image, the GT instances it sees and their pixel counts
+  (:mod:`synthleak.localize.visibility`);
+* ``sfm/``: the COLMAP model (binary) with the GT poses.
 """
 
 from __future__ import annotations
@@ -21,7 +26,8 @@ from synthleak.errors import SynthleakError
 from synthleak.localize.features import Features
 from synthleak.render.base import Camera
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""2: vocabulary-tree ``bow.npz``, ``image_instances.json``, ``retrieval`` in ``map.json``."""
 
 
 class MapError(SynthleakError, ValueError):
