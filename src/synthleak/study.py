@@ -116,6 +116,26 @@ def _tier_weights(tier: str) -> list:
     return [{"tier": asdict(spec), "weights": {name: entry["sha256"] for name, entry in sorted(record.items())}}]
 
 
+def check_tiers_installed(tiers: Sequence[str]) -> None:
+    """Fail before any rendering when a tier's packages (torch, kornia) or weight files are not installed; the
+    error names the ``[learned]`` extra and the install command."""
+    import importlib.util
+
+    from synthleak.errors import MissingDependencyError
+    from synthleak.localize.tiers import get_tier
+
+    for tier in tiers:
+        if not get_tier(tier).needs_torch:
+            continue
+        missing = [m for m in ("torch", "kornia") if importlib.util.find_spec(m) is None]
+        if missing:
+            from synthleak.localize.deep import EXTRA, INSTALL_HINT
+
+            raise MissingDependencyError(f"localize.tiers: {tier!r} needs {', '.join(missing)} (the [{EXTRA}] "
+                                         f"extra): {INSTALL_HINT}")
+        _tier_weights(tier)  # a missing weight file raises WeightsNotFoundError naming the package
+
+
 def _map_key(config: StudyConfig, render_key: str, tier: str) -> str:
     """A map depends on the renders, its tier (a learned tier's definition and weights) and the localize settings,
     not on the other tiers."""
@@ -903,6 +923,7 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
 
     forced = _check_force(force)
     check_config(config, config.name)  # a config built in Python fails here, not after the renders
+    check_tiers_installed(config.localize.tiers)
     paths = StudyPaths(Path(out))
     paths.root.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
