@@ -52,7 +52,10 @@ def plot_presence_pr(pr_rows: Sequence[dict], out: str | Path) -> Path:
     ``pr_rows``: output of :func:`synthleak.evaluate.tables.presence_pr_per_room`.
     """
     aligners = _sorted(r["aligner"] for r in pr_rows) or ["–"]
-    fig = Figure(figsize=(max(5.0, 2.2 * len(aligners) * 2), 3.6), layout="constrained")
+    n_labels = max(len({(r["tier"], r["delta_r_deg"], r["delta_t_m"]) for r in pr_rows if r["aligner"] == a})
+                   for a in aligners) if pr_rows else 1
+    panel = max(4.4, 0.5 * n_labels)  # wide enough for one rotated label per bar pair
+    fig = Figure(figsize=(max(5.0, panel * len(aligners)), 4.0), layout="constrained")
     for a_idx, aligner in enumerate(aligners):
         ax = fig.add_subplot(1, len(aligners), a_idx + 1)
         rows = [r for r in pr_rows if r["aligner"] == aligner]
@@ -67,7 +70,8 @@ def plot_presence_pr(pr_rows: Sequence[dict], out: str | Path) -> Path:
                 per_room = [r[metric] for r in match if r["room"] != "all"]
                 ax.plot(np.full(len(per_room), lab_idx + offset), per_room, ".", color="k", ms=3)
             ax.bar(x + offset, pooled, width=0.4, color=_colour(m_idx), label=metric)
-        ax.set_xticks(x, [f"{t}\n{dr:g}°/{dt:g}m" for t, dr, dt in labels], fontsize=7)
+        ax.set_xticks(x, [f"{t} {dr:g}°/{dt:g}m" for t, dr, dt in labels], fontsize=7, rotation=45, ha="right",
+                      rotation_mode="anchor")
         ax.set_ylim(0, 1.05)
         ax.set_title(f"presence, aligner {aligner}", fontsize=9)
         ax.legend(fontsize=7)
