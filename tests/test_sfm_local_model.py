@@ -53,7 +53,9 @@ def dense_orbit(ci_tiny_study: Path, tmp_path_factory: pytest.TempPathFactory):
     seq = load_sequence(seq_dir)
     target = seq.objects_by_id()[seq.target_instance_id]
     model = cached_sfm_local_poses(seq, target.extents, out / "sfm" / obj["id"], seed=config.seed)
-    localizer = Localizer.load(ci_tiny_study / "maps" / "sift" / room, config.localize)
+    # exhaustive matching: this compares local models on the same server poses, whatever the retrieval finds
+    localize = dataclasses.replace(config.localize, retrieval="exhaustive")
+    localizer = Localizer.load(ci_tiny_study / "maps" / "sift" / room, localize)
     server = {}
     for name in seq.frames[::4]:
         result = localizer.localize(seq.image_path(name).read_bytes(), seq.camera)
