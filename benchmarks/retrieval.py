@@ -40,7 +40,7 @@ from synthleak.geometry.poses import camera_centre, rotation_error_deg
 from synthleak.localize.features import Features
 from synthleak.localize.localizer import Localizer
 from synthleak.localize.matching import squared_l2
-from synthleak.localize.retrieval import BowIndex, BowParams, VocabularyTree, as_float
+from synthleak.localize.retrieval import BowIndex, BowParams, VocabularyTree, as_float, sample_rows
 from synthleak.localize.visibility import read_image_instances, retrieved_sees
 from synthleak.render.base import Camera
 from synthleak.render.dataset import load_sequence
@@ -69,9 +69,8 @@ class VoteIndex:
         image = np.concatenate([np.full(len(k), i) for i, k in enumerate(keep)])
         if tree is None:
             rng = np.random.default_rng(params.seed)
-            sample = data if len(data) <= params.sample else data[np.sort(
-                rng.choice(len(data), params.sample, replace=False))]
-            tree = VocabularyTree.train(sample, params.branching, params.depth, params.iterations, rng)
+            tree = VocabularyTree.train(sample_rows(data, params.sample, rng), params.branching, params.depth,
+                                        params.iterations, rng)
         words = tree.words(data)
         order = np.argsort(words, kind="stable")
         word_start = np.searchsorted(words[order], np.arange(tree.num_words + 1))
@@ -151,8 +150,7 @@ class LegacyBow:
     def __init__(self, features: list[Features], num_words: int = 256, seed: int = 0, sample: int = 20000):
         rng = np.random.default_rng(seed)
         data = np.concatenate([as_float(f) for f in features if len(f)])
-        if len(data) > sample:
-            data = data[np.sort(rng.choice(len(data), sample, replace=False))]
+        data = sample_rows(data, sample, rng)
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="One of the clusters is empty")
             words, _ = kmeans2(data.astype(np.float64), min(num_words, len(data) // 4), iter=10, minit="points",
@@ -182,8 +180,7 @@ class Vlad:
     def __init__(self, features: list[Features], k: int = 64, seed: int = 0, sample: int = 50000):
         rng = np.random.default_rng(seed)
         data = np.concatenate([as_float(f) for f in features if len(f)])
-        if len(data) > sample:
-            data = data[np.sort(rng.choice(len(data), sample, replace=False))]
+        data = sample_rows(data, sample, rng)
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="One of the clusters is empty")
             centres, _ = kmeans2(data.astype(np.float64), k, iter=10, minit="++", rng=rng)

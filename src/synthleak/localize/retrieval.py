@@ -61,6 +61,13 @@ def as_float(features: Features) -> np.ndarray:
     return np.asarray(features.descriptors, dtype=np.float32)
 
 
+def sample_rows(data: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """At most ``n`` rows of ``data``, a seeded sample kept in row order (all of them, and no draw, when fewer)."""
+    if len(data) <= n:
+        return data
+    return data[np.sort(rng.choice(len(data), n, replace=False))]
+
+
 def _kmeans(data: np.ndarray, k: int, iterations: int, rng: np.random.Generator) -> np.ndarray:
     """``k`` centres (k-means++ seeded); fewer points than ``k``: the points, the last one repeated."""
     if len(data) <= k:
@@ -133,8 +140,7 @@ class BowIndex:
         data = np.concatenate([as_float(f) for f in features if len(f)] or [np.zeros((0, 1), np.float32)])
         if not len(data):
             raise ValueError("BowIndex.build: the map images have no descriptors")
-        if len(data) > params.sample:
-            data = data[np.sort(rng.choice(len(data), params.sample, replace=False))]
+        data = sample_rows(data, params.sample, rng)
         tree = VocabularyTree.train(data, params.branching, params.depth, params.iterations, rng)
         raw = np.stack([cls._counts(tree, f) for f in features])
         df = (raw > 0).sum(0)
