@@ -94,6 +94,21 @@ def test_blank_image_does_not_abort_a_localize_batch(map_dir, scene, tmp_path, c
     assert lines[0]["success"] is False and lines[1]["success"] is True
 
 
+def test_refused_image_is_named_and_does_not_abort_a_localize_batch(map_dir, scene, tmp_path, capsys):
+    from synthleak.cli import main
+
+    huge = tmp_path / "huge.png"
+    huge.write_bytes(png_bytes(np.zeros((6000, 6000), np.uint8)))
+    seq = read_sequence(scene)
+    query = str(seq.image_path(seq.query_frames[0]))
+    assert main(["localize", str(map_dir), str(huge), query]) == 2
+    captured = capsys.readouterr()
+    lines = [json.loads(line) for line in captured.out.splitlines()]
+    assert [line["image"] for line in lines] == [str(huge), query]
+    assert lines[0]["success"] is False and "6000x6000" in lines[0]["error"] and lines[1]["success"] is True
+    assert str(huge) in captured.err and "1 of 2 images refused" in captured.err
+
+
 def test_16_bit_images_are_scaled_not_clipped(localizer, scene):
     seq = read_sequence(scene)
     frame = seq.query_frames[1]

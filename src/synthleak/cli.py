@@ -109,15 +109,24 @@ def _cmd_serve(args: argparse.Namespace) -> None:
 
 
 def _cmd_localize(args: argparse.Namespace) -> None:
+    from synthleak.localize.images import InvalidImageError
     from synthleak.localize.localizer import Localizer
     from synthleak.localize.server import response_from_result
 
     localizer = Localizer.load(Path(args.map), _study_config(args.config).localize, defense=_defense(args))
+    refused = []
     for image in args.images:
-        result = localizer.localize(Path(image).read_bytes())
+        try:
+            result = localizer.localize(Path(image).read_bytes())
+        except InvalidImageError as exc:  # the server would answer 400/413: this image only, the batch goes on
+            refused.append(image)
+            print(json.dumps({"image": image, "success": False, "error": " ".join(str(exc).split())}))
+            continue
         extra = {"num_inliers": result.num_inliers,
                  "inlier_instance_counts": {str(k): v for k, v in sorted(result.inlier_instance_counts.items())}}
         print(json.dumps({"image": image, **response_from_result(result), **(extra if args.verbose else {})}))
+    if refused:
+        raise InvalidImageError(f"{len(refused)} of {len(args.images)} images refused: {', '.join(refused)}")
 
 
 def _cmd_study(args: argparse.Namespace) -> None:
