@@ -23,11 +23,11 @@ from rich.console import Console
 from rich.table import Table
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.types import Camera
 from synthleak.geometry.poses import camera_centre
 from synthleak.localize import TIERS, Localizer, build_map
 from synthleak.localize import testscene as ts
 from synthleak.localize.sequence import read_sequence
-from synthleak.render.base import Camera
 
 
 def synthetic_scene(root: Path, frames: int, width: int, height: int) -> Path:

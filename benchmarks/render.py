@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from synthleak.config import RenderConfig, load_config
-from synthleak.render.base import Camera
+from synthleak.core.types import Camera
 from synthleak.render.pipeline import generate, load_stage
 from synthleak.render.raycast import RaycastGT
 from synthleak.render.registry import get_renderer

@@ -24,9 +24,8 @@ import numpy as np
 import trimesh
 
 from synthleak.config import RenderConfig
+from synthleak.core.types import Camera, Light, RenderMesh, RenderScene
 from synthleak.geometry.poses import look_at, make_pose
-from synthleak.render.base import Camera, RenderMesh, RenderScene
-from synthleak.scene.spec import Light
 from synthleak.seeding import make_rng
 
 

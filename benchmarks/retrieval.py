@@ -36,13 +36,13 @@ import numpy as np
 from scipy.cluster.vq import kmeans2
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.types import Camera
 from synthleak.geometry.poses import camera_centre, rotation_error_deg
 from synthleak.localize.features import Features
 from synthleak.localize.localizer import Localizer
 from synthleak.localize.matching import squared_l2
 from synthleak.localize.retrieval import BowIndex, BowParams, VocabularyTree, as_float, sample_rows
 from synthleak.localize.visibility import read_image_instances, retrieved_sees
-from synthleak.render.base import Camera
 from synthleak.render.dataset import load_sequence
 from synthleak.study import load_features, load_index, read_query_log
 

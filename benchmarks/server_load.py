@@ -34,10 +34,10 @@ import numpy as np
 from PIL import Image
 
 from synthleak.config import load_config
+from synthleak.core.types import Camera
 from synthleak.localize import build_map
 from synthleak.localize import testscene as ts
 from synthleak.localize.sequence import read_sequence
-from synthleak.render.base import Camera
 
 
 def _free_port() -> int:

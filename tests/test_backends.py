@@ -16,9 +16,9 @@ import pytest
 import trimesh
 
 from synthleak.config import RenderConfig
+from synthleak.core.types import Camera, Light, RenderMesh, RenderScene
 from synthleak.geometry.poses import invert, look_at, make_pose
-from synthleak.render.base import Camera, Frame, RenderMesh, RenderScene
-from synthleak.scene.spec import Light
+from synthleak.render.base import Frame
 
 W, H = 96, 72
 CONFIG = RenderConfig(width=W, height=H, spp=4)
@@ -344,10 +344,11 @@ def test_blender_one_scene_per_process() -> None:
 
 @pytest.fixture(scope="module")
 def usd_room(tmp_path_factory) -> RenderScene:
-    """The example room written as a USD stage and read back (synthleak.scene.usd_io)."""
+    """The example room written as a USD stage and read back (synthleak.scene.usd_write, synthleak.core.usd_read)."""
     try:
+        from synthleak.core.usd_read import read_render_scene
         from synthleak.scene.example import example_spec
-        from synthleak.scene.usd_io import read_render_scene, write_stage
+        from synthleak.scene.usd_write import write_stage
     except ImportError as exc:  # the scene package is built alongside: skip rather than fail
         pytest.skip(f"scene USD I/O not available: {exc}")
     path = tmp_path_factory.mktemp("stage") / "room_example.usda"

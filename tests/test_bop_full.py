@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import trimesh
 
+from synthleak.core.types import Camera, InstanceInfo, Light, RenderMesh, RenderScene
 from synthleak.geometry.poses import look_at, make_pose, transform_points
-from synthleak.render.base import Camera, Frame, InstanceInfo, RenderMesh, RenderScene
+from synthleak.render.base import Frame
 from synthleak.render.bop_full import depth_png, diameter, write_bop_extras, write_bop_models
 from synthleak.render.dataset import frame_name, write_frame, write_sequence_metadata
 from synthleak.render.raycast import RaycastGT
-from synthleak.scene.spec import Light
 
 W, H = 96, 72
 FRONT, BACK, FLOOR = 101, 102, 1

@@ -16,8 +16,8 @@ import pytest
 import trimesh
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade
 
+from synthleak.core.types import Camera
 from synthleak.geometry.poses import invert, look_at
-from synthleak.render.base import Camera
 from synthleak.render.raycast import RaycastGT
 
 CM = 0.01
@@ -175,7 +175,7 @@ def test_stage_really_uses_instancing_variants_and_payloads(room: Path) -> None:
 
 
 def test_foreign_stage_reads_in_metres_with_one_id_per_placement(room: Path) -> None:
-    from synthleak.scene.usd_io import read_render_scene
+    from synthleak.core.usd_read import read_render_scene
 
     scene = read_render_scene(room)
     by_path = {info.prim_path: iid for iid, info in scene.instances.items()}
@@ -195,7 +195,7 @@ def test_foreign_stage_reads_in_metres_with_one_id_per_placement(room: Path) -> 
 
 
 def test_foreign_stage_exact_gt_by_raycast(room: Path) -> None:
-    from synthleak.scene.usd_io import read_render_scene
+    from synthleak.core.usd_read import read_render_scene
 
     scene = read_render_scene(room)
     names = {iid: info.prim_path.rsplit("/", 1)[-1] for iid, info in scene.instances.items()}

@@ -15,11 +15,10 @@ from synthleak.assets.library import load_library
 from synthleak.assets.materials import FAMILIES, UNIQUE, assign_materials, model_skus, with_materials
 from synthleak.assets.variants import variant, variant_from_record
 from synthleak.config import load_config
+from synthleak.core.types import Camera, InstanceInfo, Light, RenderMesh, RenderScene
 from synthleak.geometry.poses import look_at, make_pose
-from synthleak.render.base import Camera, InstanceInfo, RenderMesh, RenderScene
 from synthleak.render.mitsuba_backend import MitsubaRenderer
 from synthleak.scene.generate import write_study_stages
-from synthleak.scene.spec import Light
 
 DATA = Path(__file__).parent / "data"
 
@@ -160,7 +159,7 @@ def test_distractors_are_never_attacker_objects(hard_stages, library):
 
 
 def test_skus_are_recorded_in_index_stage_and_attacker(hard_stages):
-    from synthleak.scene.usd_io import read_scene_spec
+    from synthleak.scene.usd_read import read_scene_spec
 
     _, out, index = hard_stages
     by_model = {a["model_id"]: a for a in index["attacker_objects"]}
@@ -347,11 +346,12 @@ def test_world_sweep_runs_a_study_per_value(tmp_path):
 def test_furniture_walkthrough_and_closeups_stand_in_free_space(tmp_path):
     """Every camera of the tour and of the close-ups stands inside the room and outside every piece of floor
     furniture, looks at something that is not the room shell, and the same seed gives the same poses."""
+    from synthleak.core.usd_read import read_render_scene
     from synthleak.geometry.poses import camera_centre
     from synthleak.render.furniture_views import _floor_footprints, closeup_views, furniture_walkthrough
     from synthleak.render.raycast import RaycastGT
     from synthleak.render.trajectories import _clearance, room_bounds
-    from synthleak.scene.usd_io import read_render_scene, write_stage
+    from synthleak.scene.usd_write import write_stage
     from synthleak.seeding import make_rng
 
     config = _config(material_sharing=0.5, distractors=(2, 2), clutter=1.0, layout="home")

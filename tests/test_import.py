@@ -13,9 +13,9 @@ from PIL import Image
 
 from synthleak.assets import importer
 from synthleak.assets.importer import canonical_rotation, import_model, install_library_hook
+from synthleak.core.types import Camera, RenderMesh
 from synthleak.geometry.poses import look_at
 from synthleak.paths import object_library_dir
-from synthleak.render.base import Camera, RenderMesh
 from synthleak.render.raycast import pixel_rays
 
 MEAN = np.array([200.0, 70.0, 40.0])

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.types import Camera
 from synthleak.localize import Localizer, build_map, get_tier
 from synthleak.localize import testscene as ts
-from synthleak.render.base import Camera
 
 LEARNED = ["xfeat", "xfeat-lighterglue", "disk-lightglue", "aliked-lightglue"]
 SKIP = "the [learned] extra is not installed (README, 'Learned tiers'): "
@@ -171,7 +171,7 @@ def object_pair(tmp_path_factory) -> dict:
     from synthleak.render.trajectories import orbit_distance
     from synthleak.scene.attacker_env import compose_attacker
     from synthleak.scene.plan import ATTACKER_TARGET_ID, AttackerPlan
-    from synthleak.scene.usd_io import write_stage
+    from synthleak.scene.usd_write import write_stage
 
     out = tmp_path_factory.mktemp("pair")
     library = load_library()

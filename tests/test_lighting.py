@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from synthleak.config import RenderConfig, StudyConfig
+from synthleak.core.types import Camera
 from synthleak.geometry.poses import look_at
-from synthleak.render.base import Camera
 from synthleak.render.raycast import RaycastGT
 from synthleak.render.registry import RendererUnavailable, get_renderer
 from tiny_stages import write_config, write_cornell_box
@@ -52,7 +52,7 @@ def _assert_gt_is_the_ray_cast(scene, frame, backend: str) -> None:
 
 @pytest.mark.parametrize("backend", sorted(BACKENDS))
 def test_an_emissive_mesh_alone_lights_the_room(tmp_path: Path, backend: str) -> None:
-    from synthleak.scene.usd_io import read_render_scene
+    from synthleak.core.usd_read import read_render_scene
 
     renderer = _renderer(backend)
     scene = read_render_scene(write_cornell_box(tmp_path / "box.usda", light="emissive"))
@@ -109,9 +109,8 @@ def test_the_cli_prints_the_default_light_warning(tmp_path: Path) -> None:
 def test_stand_ins_for_emissive_meshes() -> None:
     """A flat emitter becomes a rect light of its area facing along its normal; a closed one a sphere light of
     the same power; a glowing part next to much stronger lights gets none."""
-    from synthleak.render.base import RenderMesh, RenderScene
+    from synthleak.core.types import Light, RenderMesh, RenderScene
     from synthleak.render.lighting import emissive_lights, light_power
-    from synthleak.scene.spec import Light
 
     quad = RenderMesh("panel", 1, np.array([[0, 0, 2.0], [0, 1, 2], [1, 1, 2], [1, 0, 2]]),
                       np.array([[0, 1, 2], [0, 2, 3]]), None, None, emissive=(6.0, 3.0, 3.0))  # faces -z

@@ -22,6 +22,7 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from synthleak.config import LocalizeConfig, config_from_dict
+from synthleak.core.types import Camera
 from synthleak.geometry.poses import camera_centre, look_at, rotation_error_deg
 from synthleak.localize import DefensePolicy, Localizer, build_map, decide, get_tier
 from synthleak.localize import testscene as ts
@@ -30,7 +31,6 @@ from synthleak.localize.defense import contributing_instances
 from synthleak.localize.localizer import InvalidImageError
 from synthleak.localize.sequence import read_sequence
 from synthleak.localize.server import create_app, response_from_result
-from synthleak.render.base import Camera
 
 CONFIG = LocalizeConfig(max_keypoints=2048, pairs_per_image=8)
 CAMERA = Camera.from_hfov(320, 240, 65.0)

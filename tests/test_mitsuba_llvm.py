@@ -7,11 +7,10 @@ import numpy as np
 import pytest
 import trimesh
 
+from synthleak.core.types import Camera, Light, RenderMesh, RenderScene
 from synthleak.geometry.poses import look_at, make_pose
 from synthleak.render import mitsuba_backend
-from synthleak.render.base import Camera, RenderMesh, RenderScene
 from synthleak.render.mitsuba_backend import MitsubaRenderer, find_libllvm
-from synthleak.scene.spec import Light
 
 
 def _llvm_missing() -> str | None:

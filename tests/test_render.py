@@ -11,8 +11,8 @@ import pytest
 import trimesh
 
 from synthleak.config import ConfigError, RenderConfig, StudyConfig, config_from_dict
+from synthleak.core.types import Camera, InstanceInfo, Light, RenderMesh, RenderScene
 from synthleak.geometry.poses import camera_centre, invert, look_at, make_pose, transform_points
-from synthleak.render.base import Camera, InstanceInfo, RenderMesh, RenderScene
 from synthleak.render.dataset import DatasetError, load_sequence
 from synthleak.render.mitsuba_backend import MitsubaRenderer
 from synthleak.render.pipeline import (
@@ -25,7 +25,6 @@ from synthleak.render.pipeline import (
 from synthleak.render.raycast import RaycastGT
 from synthleak.render.registry import RendererUnavailable, get_renderer
 from synthleak.render.trajectories import orbit, walkthrough
-from synthleak.scene.spec import Light
 from synthleak.seeding import make_rng
 
 ROOM = (4.0, 3.5, 2.6)
@@ -479,7 +478,7 @@ def real_dataset(tmp_path_factory):
 
 
 def test_real_stages_ground_truth_and_layout(real_dataset):
-    from synthleak.scene.usd_io import read_render_scene
+    from synthleak.core.usd_read import read_render_scene
 
     out, _ = real_dataset
     index = __import__("json").loads((out / "stages" / "index.json").read_text())

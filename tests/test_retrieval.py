@@ -12,6 +12,7 @@ import pytest
 from PIL import Image
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.types import Camera
 from synthleak.geometry.poses import camera_centre, look_at
 from synthleak.localize import Localizer, build_map
 from synthleak.localize import testscene as ts
@@ -19,7 +20,6 @@ from synthleak.localize.features import Features
 from synthleak.localize.retrieval import BowIndex, BowParams
 from synthleak.localize.sequence import read_sequence
 from synthleak.localize.visibility import read_image_instances, retrieved_sees, visible_instances
-from synthleak.render.base import Camera
 
 CAMERA = Camera.from_hfov(320, 240, 65.0)
 CONFIG = LocalizeConfig(max_keypoints=1024, pairs_per_image=5, retrieval="bow", top_k=3)

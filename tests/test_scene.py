@@ -404,7 +404,7 @@ def stages(tiny_config, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_study_stages_layout_and_contract(stages: Path) -> None:
-    from synthleak.scene.usd_io import read_scene_spec
+    from synthleak.scene.usd_read import read_scene_spec
 
     index = json.loads((stages / "index.json").read_text())
     assert index["seed"] == 21 and len(index["rooms"]) == 2

@@ -25,13 +25,13 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.types import Camera
 from synthleak.localize import Localizer, build_map
 from synthleak.localize import testscene as ts
 from synthleak.localize.images import MAX_QUERY_PIXELS, ImageTooLargeError, decode_image, read_size
 from synthleak.localize.pool import LocalizerPool
 from synthleak.localize.sequence import read_sequence
 from synthleak.localize.server import create_app
-from synthleak.render.base import Camera
 
 CONFIG = LocalizeConfig(max_keypoints=1024, pairs_per_image=4)
 CAMERA = Camera.from_hfov(320, 240, 65.0)

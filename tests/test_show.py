@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from synthleak.assets.mesh import ObjectMesh, TexturedPart
+from synthleak.core.types import Light
 from synthleak.inspect import contact_sheet, id_colour, plan_view, projected_boxes
 from synthleak.inspect.contact_sheet import BAR_W, find_sequence
 from synthleak.render.dataset import DatasetError
-from synthleak.scene.spec import Light, PlacedObject, SceneSpec
+from synthleak.scene.spec import PlacedObject, SceneSpec
 from test_bop_full import BACK, FRONT, H, W, write_box_sequence
 
 
@@ -76,7 +77,8 @@ def _pose(x: float, y: float, yaw_deg: float = 0.0) -> np.ndarray:
 
 
 def test_plan_view_with_camera_path(tmp_path) -> None:
-    from synthleak.scene.usd_io import read_render_scene, write_stage
+    from synthleak.core.usd_read import read_render_scene
+    from synthleak.scene.usd_write import write_stage
 
     objects = [
         PlacedObject(

@@ -15,11 +15,16 @@ from scipy.spatial.transform import Rotation
 
 from synthleak.assets.mesh import ObjectMesh, TexturedPart
 from synthleak.config import config_from_dict
+from synthleak.core.types import Light
+from synthleak.core.usd_read import read_render_scene
+from synthleak.errors import StageError
 from synthleak.geometry.poses import make_pose, transform_points
 from synthleak.scene.generate import write_study_stages
-from synthleak.scene.spec import Light, PlacedObject, SceneSpec
+from synthleak.scene.spec import PlacedObject, SceneSpec
 from synthleak.scene.texture_store import encode_png, store_texture, texture_key
-from synthleak.scene.usd_io import StageError, read_render_scene, read_scene_spec, validate_stage, write_stage
+from synthleak.scene.usd_read import read_scene_spec
+from synthleak.scene.usd_validate import validate_stage
+from synthleak.scene.usd_write import write_stage
 
 
 def _box_part(name: str, rng: np.random.Generator, size=(0.5, 0.4, 0.3)) -> TexturedPart:

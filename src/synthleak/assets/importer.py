@@ -1,7 +1,7 @@
 """``synthleak import``: bring your own textured model into the object library (canonical frame, UV textures).
 
 :func:`import_model` reads OBJ (+ MTL and textures), glTF / GLB, PLY (via trimesh) and USD / USDA / USDC / USDZ
-(via :func:`synthleak.scene.usd_io.read_render_scene`, which already applies the stage's ``metersPerUnit`` and
+(via :func:`synthleak.core.usd_read.read_render_scene`, which already applies the stage's ``metersPerUnit`` and
 ``upAxis``), then
 
 1. rotates so the file's ``up`` axis becomes +z and its ``front`` axis +y (default: +z for a y-up file, as glTF
@@ -214,7 +214,7 @@ def _trimesh_parts(path: Path) -> list[SourcePart]:
 
 
 def _usd_parts(path: Path) -> list[SourcePart]:
-    from synthleak.scene.usd_io import read_render_scene
+    from synthleak.core.usd_read import read_render_scene
 
     with tempfile.TemporaryDirectory(prefix="synthleak-usdz-") as tmp:
         stage = path

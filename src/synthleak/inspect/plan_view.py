@@ -1,6 +1,6 @@
 """Top-down plan of a stage: walls, object footprints with ids and front arrows, optionally a camera path.
 
-Any stage :func:`synthleak.scene.usd_io.read_render_scene` reads works (foreign stages included): footprints
+Any stage :func:`synthleak.core.usd_read.read_render_scene` reads works (foreign stages included): footprints
 are the convex hulls of each instance's world-space vertices seen from above (metres, +z up). Shell pieces
 are drawn grey (a thin horizontal piece low in the room is the floor, one high up the ceiling, left out);
 objects in their palette colour (:func:`synthleak.inspect.contact_sheet.id_colour`) with their id and an
@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from synthleak.atomic_io import atomic_write_bytes
+from synthleak.core.types import RenderScene
 from synthleak.geometry.poses import invert
-from synthleak.render.base import RenderScene
 from synthleak.render.dataset import DatasetError, load_sequence
 
 FIG_INCHES = 7.0

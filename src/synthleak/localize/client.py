@@ -9,9 +9,9 @@ import httpx
 import numpy as np
 from PIL import Image
 
+from synthleak.core.types import Camera
 from synthleak.geometry.poses import make_pose, matrix_from_quat_wxyz
 from synthleak.localize.localizer import LocalizationResult
-from synthleak.render.base import Camera
 
 
 class LocalizationServiceError(RuntimeError):

@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 from PIL import Image
 
+from synthleak.core.types import Camera
 from synthleak.errors import SynthleakError
-from synthleak.render.base import Camera
 
 MAX_QUERY_PIXELS = 25_000_000
 """Largest query image (width x height) that is decoded at all."""

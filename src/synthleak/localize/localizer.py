@@ -12,13 +12,13 @@ import numpy as np
 import pycolmap
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.types import Camera
 from synthleak.localize.defense import DefenseDecision, DefensePolicy
 from synthleak.localize.features import Features
 from synthleak.localize.images import MAX_QUERY_PIXELS, InvalidImageError, decode_image, fit_to_pixels
 from synthleak.localize.retrieval import RETRIEVAL_METHODS, BowIndex
 from synthleak.localize.store import MapData, read_map
 from synthleak.localize.tiers import Tier, get_tier
-from synthleak.render.base import Camera
 
 RANSAC_SEED = 0
 

@@ -18,12 +18,12 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.types import Camera
 from synthleak.executors import START_METHOD, limit_worker_threads
 from synthleak.localize.defense import DefensePolicy
 from synthleak.localize.images import MAX_QUERY_PIXELS
 from synthleak.localize.localizer import LocalizationResult, Localizer, log_decision
 from synthleak.localize.store import read_map_meta
-from synthleak.render.base import Camera
 
 _WORKER: dict = {}
 """This worker process's ``localizer`` and start-up ``barrier``."""

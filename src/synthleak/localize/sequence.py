@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from synthleak.core.types import Camera
 from synthleak.errors import SynthleakError
-from synthleak.render.base import Camera
 from synthleak.render.dataset import DatasetError, load_sequence
 
 

@@ -35,12 +35,12 @@ from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.types import Camera
 from synthleak.geometry.poses import quat_wxyz_from_matrix
 from synthleak.localize.defense import DefensePolicy
 from synthleak.localize.images import MAX_QUERY_PIXELS, ImageTooLargeError, InvalidImageError, read_size
 from synthleak.localize.localizer import LocalizationResult, Localizer
 from synthleak.localize.pool import LocalizerPool, WorkerCrashedError
-from synthleak.render.base import Camera
 
 MAX_UPLOAD_BYTES = 32 * 1024 * 1024
 MIN_IMAGE_SIDE = 16

@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+from synthleak.core.types import Camera
 from synthleak.errors import SynthleakError
 from synthleak.localize.features import Features
-from synthleak.render.base import Camera
 
 FORMAT_VERSION = 2
 """2: vocabulary-tree ``bow.npz``, ``image_instances.json``, ``retrieval`` in ``map.json``."""

@@ -17,8 +17,8 @@ from PIL import Image
 from trimesh import Trimesh
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
+from synthleak.core.types import Camera
 from synthleak.geometry.poses import camera_centre, look_at, quat_wxyz_from_matrix
-from synthleak.render.base import Camera
 from synthleak.seeding import make_rng
 
 PIXELS_PER_METRE = 160.0

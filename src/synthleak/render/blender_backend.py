@@ -37,9 +37,9 @@ from typing import Any
 import numpy as np
 
 from synthleak.config import RenderConfig
+from synthleak.core.types import Camera, Light, RenderMesh, RenderScene
 from synthleak.errors import MissingDependencyError
-from synthleak.render.base import Camera, Frame, RenderMesh, RenderScene
-from synthleak.scene.spec import Light
+from synthleak.render.base import Frame
 
 INSTALL_HINT = (
     "bpy needs Python 3.11 and numpy<2, so use a separate venv: python3.11 -m venv /work/venv-blender && "

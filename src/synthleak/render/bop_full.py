@@ -29,8 +29,8 @@ import numpy as np
 import trimesh
 
 from synthleak.atomic_io import atomic_write_bytes, atomic_write_text
+from synthleak.core.types import Camera, RenderScene
 from synthleak.geometry.poses import invert, make_pose, transform_points
-from synthleak.render.base import Camera, RenderScene
 from synthleak.render.dataset import (
     DatasetError,
     atomic_write_json,
@@ -228,7 +228,7 @@ def _cam_from_model(path: Path, key: str, entry: dict[str, Any]) -> np.ndarray:
 def write_bop_extras(seq_dir: Path, scene: RenderScene, depth_scale: float = 0.1, models: bool = True) -> None:
     """Write scene_gt_info.json, mask/, mask_visib/, depth/ (and models/ when ``models``) under
     ``seq_dir/bop`` and set ``depth_scale`` in scene_camera.json. ``scene`` is the stage the sequence was
-    rendered from (world frame, as :func:`synthleak.scene.usd_io.read_render_scene` returns it)."""
+    rendered from (world frame, as :func:`synthleak.core.usd_read.read_render_scene` returns it)."""
     seq_dir = Path(seq_dir)
     seq = load_sequence(seq_dir)
     camera = seq.camera

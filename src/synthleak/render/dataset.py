@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from synthleak.atomic_io import TEMP_PREFIX, atomic_write_bytes, atomic_write_text
+from synthleak.core.types import Camera, InstanceInfo
 from synthleak.errors import SynthleakError
 from synthleak.geometry.poses import (
     check_pose,
@@ -25,7 +26,7 @@ from synthleak.geometry.poses import (
     matrix_from_quat_wxyz,
     quat_wxyz_from_matrix,
 )
-from synthleak.render.base import Camera, Frame, InstanceInfo
+from synthleak.render.base import Frame
 
 BOP_DEPTH_SCALE = 0.25
 """BOP 16-bit depth PNGs hold depth_mm / BOP_DEPTH_SCALE: 0.25 mm steps up to 16.4 m (0.1 would stop at 6.5 m)."""

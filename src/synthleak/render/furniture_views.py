@@ -15,8 +15,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from synthleak.core.types import Camera, InstanceInfo, RenderScene
 from synthleak.geometry.poses import look_at
-from synthleak.render.base import Camera, InstanceInfo, RenderScene
 from synthleak.render.raycast import RaycastGT
 from synthleak.render.trajectories import EYE_HEIGHT, _clearance, _roll, room_bounds
 

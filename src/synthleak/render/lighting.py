@@ -23,9 +23,8 @@ import warnings
 
 import numpy as np
 
+from synthleak.core.types import Light, RenderMesh, RenderScene
 from synthleak.geometry.poses import look_at, make_pose
-from synthleak.render.base import RenderMesh, RenderScene
-from synthleak.scene.spec import Light
 
 FLAT = 0.9
 """An emitter is flat when the length of its summed area-weighted normals is at least this share of its area."""

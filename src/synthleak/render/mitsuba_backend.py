@@ -18,11 +18,11 @@ from typing import Any
 
 import numpy as np
 
+from synthleak.core.types import Camera, Light, RenderMesh, RenderScene
 from synthleak.executors import worker_thread_cap
-from synthleak.render.base import Camera, Frame, RenderMesh, RenderScene
+from synthleak.render.base import Frame
 from synthleak.render.raycast import RaycastGT, pixel_rays
 from synthleak.render.registry import FILTERS, INTEGRATORS, MITSUBA_VARIANTS
-from synthleak.scene.spec import Light
 
 VARIANT = "scalar_rgb"
 """The default variant: runs anywhere the wheel installs."""

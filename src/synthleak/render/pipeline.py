@@ -21,9 +21,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from synthleak.cache import MARKER
 from synthleak.config import StudyConfig, config_to_dict
+from synthleak.core.types import Camera, RenderScene
 from synthleak.errors import StageError
 from synthleak.executors import Executor, LocalExecutor, chunks
-from synthleak.render.base import Camera, RenderScene
 from synthleak.render.bop_full import write_bop_extras
 from synthleak.render.dataset import (
     BOP_DEPTH_SCALE,
@@ -76,9 +76,9 @@ def load_stage(scene_path: Path) -> RenderScene:
     if not scene_path.is_file():
         raise StageError(f"{scene_path}: stage file does not exist")
     try:
-        from synthleak.scene.usd_io import read_render_scene
+        from synthleak.core.usd_read import read_render_scene
     except ImportError as exc:
-        raise StageError(f"{scene_path}: cannot read stages, synthleak.scene.usd_io unavailable ({exc})") from exc
+        raise StageError(f"{scene_path}: cannot read stages, synthleak.core.usd_read unavailable ({exc})") from exc
     try:
         return read_render_scene(scene_path)
     except Exception as exc:  # noqa: BLE001 - any reader failure becomes a clear, file-named error

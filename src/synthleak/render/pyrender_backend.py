@@ -36,9 +36,9 @@ from typing import Any
 import numpy as np
 
 from synthleak.config import RenderConfig
-from synthleak.render.base import Camera, Frame, RenderMesh, RenderScene
+from synthleak.core.types import Camera, Light, RenderMesh, RenderScene
+from synthleak.render.base import Frame
 from synthleak.render.lighting import emissive_lights
-from synthleak.scene.spec import Light
 
 INSTALL_HINT = (
     "pip install -e '.[pyrender]' (pyrender 0.1.45, pins PyOpenGL 3.1.0) and the Mesa EGL libraries "

@@ -10,7 +10,7 @@ import numpy as np
 import trimesh
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
-from synthleak.render.base import Camera, RenderMesh
+from synthleak.core.types import Camera, RenderMesh
 
 
 def pixel_rays(camera: Camera, cam_from_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from synthleak.core.types import InstanceInfo, RenderScene
 from synthleak.geometry.poses import look_at, make_pose
-from synthleak.render.base import InstanceInfo, RenderScene
 
 EYE_HEIGHT = (1.3, 1.8)
 WALKTHROUGHS = ("loop", "furniture")

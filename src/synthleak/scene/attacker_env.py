@@ -17,11 +17,12 @@ import functools
 import numpy as np
 
 from synthleak.assets.mesh import ObjectMesh
+from synthleak.core.types import Light
 from synthleak.geometry.poses import make_pose
 from synthleak.scene.plan import ATTACKER_TARGET_ID, AttackerPlan
 from synthleak.scene.room import RoomShell, build_room_shell, ceiling_lights, f32, shell_texture
 from synthleak.scene.shell_geometry import planar_box
-from synthleak.scene.spec import Light, PlacedObject, SceneSpec
+from synthleak.scene.spec import PlacedObject, SceneSpec
 from synthleak.scene.styles import ShellStyle, attacker_styles
 from synthleak.seeding import make_rng
 

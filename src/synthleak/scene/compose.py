@@ -15,11 +15,12 @@ import numpy as np
 
 from synthleak.assets.materials import with_materials
 from synthleak.assets.variants import Variant, variant
+from synthleak.core.types import Light
 from synthleak.scene.clutter import place_clutter
 from synthleak.scene.placement import Body, Item, Placer, place_items
 from synthleak.scene.plan import RoomPlan
 from synthleak.scene.room import build_room_shell, ceiling_lights, f32
-from synthleak.scene.spec import Light, PlacedObject, SceneSpec
+from synthleak.scene.spec import PlacedObject, SceneSpec
 from synthleak.scene.styles import ShellStyle, room_styles
 from synthleak.seeding import make_rng
 

@@ -17,7 +17,7 @@ from synthleak.scene.room import build_room_shell, ceiling_lights, yaw_matrix
 from synthleak.scene.shell_geometry import merge_parts, planar_box
 from synthleak.scene.spec import PlacedObject, SceneSpec
 from synthleak.scene.styles import room_styles
-from synthleak.scene.usd_io import write_stage
+from synthleak.scene.usd_write import write_stage
 from synthleak.seeding import make_rng
 
 EXAMPLE_SEED = 2023

@@ -21,7 +21,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from synthleak.config import StudyConfig
 from synthleak.paths import scenes_usd_dir
 from synthleak.scene.plan import ATTACKER_TARGET_ID, AttackerPlan, RoomPlan, StudyPlan, plan_study
-from synthleak.scene.usd_io import write_stage
+from synthleak.scene.usd_write import write_stage
 
 STAGE_FORMAT = 1
 """Bump when the composer's output changes for the same plan (invalidates skip keys)."""

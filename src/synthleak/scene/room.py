@@ -15,9 +15,10 @@ from shapely.geometry import Polygon, box
 
 from synthleak.assets.mesh import ObjectMesh
 from synthleak.assets.textures import make_texture
+from synthleak.core.types import Light
 from synthleak.geometry.poses import make_pose
 from synthleak.scene.shell_geometry import box_with_holes, planar_box
-from synthleak.scene.spec import Light, PlacedObject
+from synthleak.scene.spec import PlacedObject
 from synthleak.scene.styles import ShellStyle
 
 WALL_THICKNESS = 0.12

@@ -1,7 +1,7 @@
 """In-memory description of a scene: what the USD writer writes and the USD reader gives back.
 
-``SceneSpec`` is what synthleak composes (rooms, attacker setups). ``RenderScene`` (render.base) is the
-flattened, world-space form a renderer consumes; ``synthleak.scene.usd_io.read_render_scene`` builds it
+``SceneSpec`` is what synthleak composes (rooms, attacker setups). ``RenderScene`` (core.types) is the
+flattened, world-space form a renderer consumes; ``synthleak.core.usd_read.read_render_scene`` builds it
 from any stage.
 """
 
@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from synthleak.assets.mesh import ObjectMesh
+from synthleak.core.types import Light
 
 
 @dataclass
@@ -40,21 +41,6 @@ class PlacedObject:
 
     def object_extents(self) -> np.ndarray:
         return self.mesh.extents() if self.extents is None else np.asarray(self.extents, dtype=np.float64)
-
-
-@dataclass
-class Light:
-    """A light source. ``kind``: ``sphere`` (point-like, ``radius``), ``rect`` (area light facing -z of its
-    frame, ``size``), or ``distant`` (direction = -z of its frame). ``world_from_light`` places it;
-    ``intensity`` is radiant intensity (W/sr) for sphere lights and radiance for rect lights, ``color`` RGB."""
-
-    name: str
-    kind: str
-    world_from_light: np.ndarray
-    intensity: float
-    color: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    radius: float = 0.05
-    size: tuple[float, float] = (0.5, 0.5)
 
 
 @dataclass

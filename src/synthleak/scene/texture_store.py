@@ -49,8 +49,3 @@ def store_texture(texture: np.ndarray, stage_dir: Path) -> str:
         tmp.replace(path)
     return rel
 
-
-def load_texture(path: Path) -> np.ndarray:
-    """(H, W, 3) uint8 array of an image file (alpha dropped, greyscale expanded)."""
-    with Image.open(path) as img:
-        return np.asarray(img.convert("RGB"), dtype=np.uint8).copy()

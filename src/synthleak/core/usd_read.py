@@ -1,21 +1,13 @@
-"""USD stages: write a :class:`SceneSpec` as ``.usda``, read it back (spec or render scene), validate.
+"""Read any USD stage (synthleak's own or one written by another tool) into world-space meshes, instances
+and lights: :func:`read_stage` gives the instances with their parts in their object frames, and
+:func:`read_render_scene` flattens them into the :class:`~synthleak.core.types.RenderScene` a renderer
+consumes (the asset importer reads USD models through it too).
 
-Stage layout written by :func:`write_stage` (metres, +z up, defaultPrim ``/World``)::
-
-    /World                      Xform, kind=assembly
-      /Shell/<piece>            Xform, kind=component, xformOp:transform = world_from_object (double)
-      /Objects/<object>         same, with custom ``synthleak:*`` attributes
-        /<part>                 Mesh, points in the object frame, primvars:st (vertex), bound material
-        /Looks/<part>           Material: UsdPreviewSurface <- UsdUVTexture(textures/<hash>.png) <- st reader
-      /Lights/<light>           UsdLux Sphere/Rect/DistantLight, DomeLight "ambient" for the fill term
-
-USD matrices act on row vectors, so the stored matrix is the transpose of our column-vector 4x4.
-Light intensities, colours and sizes are float32 in USD (compose with float32-representable values for an
-exact round trip); transforms, extents and custom attributes are doubles / strings and round-trip exactly.
-
-The readers also accept stages written by other tools: instances are prims with ``synthleak:instanceId``, else
-``kind = component`` prims, else top-level children of the default prim; ``metersPerUnit`` and a Y up axis are
-converted to metres and +z up; anything unsupported raises a python warning that names the prim.
+Instances are prims with ``synthleak:instanceId``, else ``kind = component`` prims, else top-level children of
+the default prim; ``metersPerUnit`` and a Y up axis are converted to metres and +z up; anything unsupported
+raises a python warning that names the prim. The layout synthleak writes is described in
+:mod:`synthleak.scene.usd_write`; USD matrices act on row vectors, so a stored matrix is the transpose of our
+column-vector 4x4.
 """
 
 from __future__ import annotations
@@ -23,211 +15,20 @@ from __future__ import annotations
 import json
 import warnings
 from dataclasses import dataclass, field
+from io import BytesIO
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pxr import Gf, Kind, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, UsdValidation, Vt
+from PIL import Image
+from pxr import Ar, Gf, Kind, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade
 
-from synthleak.assets.mesh import ObjectMesh, TexturedPart
+from synthleak.core.types import InstanceInfo, Light, RenderMesh, RenderScene
 from synthleak.errors import StageError
-from synthleak.render.base import InstanceInfo, RenderMesh, RenderScene
-from synthleak.scene.spec import Light, PlacedObject, SceneSpec
-from synthleak.scene.texture_store import load_texture, store_texture
 
 NS = "synthleak:"
+"""Namespace of synthleak's custom attributes and layer data."""
 _DEFAULT_COLOUR = (0.7, 0.7, 0.7)
-
-
-# ----------------------------------------------------------------------------------------------- writing
-
-
-def _usd_matrix(pose: np.ndarray) -> Gf.Matrix4d:
-    return Gf.Matrix4d(np.asarray(pose, dtype=np.float64).T.tolist())
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating):
-        return float(value)
-    if isinstance(value, tuple | set):
-        return list(value)
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
-
-
-def to_json(value: Any) -> str:
-    """Canonical JSON (sorted keys, numpy types converted) used for ``synthleak:variantParams``."""
-    return json.dumps(value, sort_keys=True, default=_json_default, separators=(",", ":"))
-
-
-class _Names:
-    """Valid, unique prim names below one parent."""
-
-    def __init__(self) -> None:
-        self.used: set[str] = set()
-
-    def __call__(self, name: str) -> str:
-        base = Tf.MakeValidIdentifier(name or "item")
-        out, i = base, 1
-        while out in self.used:
-            out, i = f"{base}_{i}", i + 1
-        self.used.add(out)
-        return out
-
-
-def _add_transform(prim: Usd.Prim, pose: np.ndarray) -> None:
-    op = UsdGeom.Xformable(prim).AddTransformOp(UsdGeom.XformOp.PrecisionDouble)
-    op.Set(_usd_matrix(pose))
-
-
-def _write_material(stage: Usd.Stage, path: str, part: TexturedPart, stage_dir: Path) -> UsdShade.Material:
-    material = UsdShade.Material.Define(stage, path)
-    surface = UsdShade.Shader.Define(stage, f"{path}/PreviewSurface")
-    surface.CreateIdAttr("UsdPreviewSurface")
-    surface.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(float(part.roughness))
-    surface.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(float(part.metallic))
-    if part.emissive is not None:
-        surface.CreateInput("emissiveColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*part.emissive))
-    material.CreateSurfaceOutput().ConnectToSource(surface.CreateOutput("surface", Sdf.ValueTypeNames.Token))
-    reader = UsdShade.Shader.Define(stage, f"{path}/stReader")
-    reader.CreateIdAttr("UsdPrimvarReader_float2")
-    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-    texture = UsdShade.Shader.Define(stage, f"{path}/diffuseTexture")
-    texture.CreateIdAttr("UsdUVTexture")
-    texture.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(
-        Sdf.AssetPath(store_texture(part.texture, stage_dir))
-    )
-    texture.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
-        reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-    )
-    texture.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
-    texture.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
-    texture.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
-    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
-        texture.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
-    )
-    return material
-
-
-def _write_mesh(stage: Usd.Stage, path: str, part: TexturedPart, material: UsdShade.Material) -> None:
-    verts = np.asarray(part.vertices, dtype=np.float32)
-    faces = np.asarray(part.faces, dtype=np.int32)
-    mesh = UsdGeom.Mesh.Define(stage, path)
-    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(verts))
-    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(faces), 3, dtype=np.int32)))
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(faces.reshape(-1)))
-    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-    mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([verts.min(axis=0), verts.max(axis=0)])))
-    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
-        "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex
-    )
-    st.Set(Vt.Vec2fArray.FromNumpy(np.asarray(part.uv, dtype=np.float32)))
-    mesh.GetPrim().CreateAttribute(NS + "partName", Sdf.ValueTypeNames.String, custom=True).Set(part.name)
-    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
-
-
-def _write_instance(stage: Usd.Stage, path: str, obj: PlacedObject, stage_dir: Path) -> None:
-    xform = UsdGeom.Xform.Define(stage, path)
-    prim = xform.GetPrim()
-    Usd.ModelAPI(prim).SetKind(Kind.Tokens.component)
-    _add_transform(prim, obj.world_from_object)
-    attrs: list[tuple[str, Any, Any]] = [
-        ("instanceId", Sdf.ValueTypeNames.Int, int(obj.instance_id)),
-        ("name", Sdf.ValueTypeNames.String, obj.name),
-        ("modelId", Sdf.ValueTypeNames.String, obj.model_id),
-        ("category", Sdf.ValueTypeNames.String, obj.category),
-        ("symmetry", Sdf.ValueTypeNames.String, obj.symmetry),
-        ("role", Sdf.ValueTypeNames.String, obj.role),
-        ("support", Sdf.ValueTypeNames.String, obj.support),
-        ("variantParams", Sdf.ValueTypeNames.String, to_json(obj.variant_params)),
-        ("extents", Sdf.ValueTypeNames.Double3, Gf.Vec3d(*map(float, obj.object_extents()))),
-    ]
-    for name, type_name, value in attrs:
-        prim.CreateAttribute(NS + name, type_name, custom=True).Set(value)
-    names = _Names()
-    names("Looks")
-    if obj.mesh.parts:
-        UsdGeom.Scope.Define(stage, f"{path}/Looks")
-    for part in obj.mesh.parts:
-        name = names(part.name)
-        material = _write_material(stage, f"{path}/Looks/{name}", part, stage_dir)
-        _write_mesh(stage, f"{path}/{name}", part, material)
-
-
-def _write_light(stage: Usd.Stage, path: str, light: Light) -> None:
-    if light.kind == "sphere":
-        lux = UsdLux.SphereLight.Define(stage, path)
-        lux.CreateRadiusAttr(float(light.radius))
-    elif light.kind == "rect":
-        lux = UsdLux.RectLight.Define(stage, path)
-        lux.CreateWidthAttr(float(light.size[0]))
-        lux.CreateHeightAttr(float(light.size[1]))
-    elif light.kind == "distant":
-        lux = UsdLux.DistantLight.Define(stage, path)
-    else:
-        raise ValueError(
-            f"light {light.name!r}: field 'kind' must be sphere, rect or distant, got {light.kind!r}"
-        )
-    lux.CreateIntensityAttr(float(light.intensity))
-    lux.CreateColorAttr(Gf.Vec3f(*map(float, light.color)))
-    lux.GetPrim().CreateAttribute(NS + "name", Sdf.ValueTypeNames.String, custom=True).Set(light.name)
-    _add_transform(lux.GetPrim(), light.world_from_light)
-
-
-def stage_to_string(spec: SceneSpec, stage_dir: Path) -> str:
-    """The ``.usda`` text of ``spec``; textures are written to ``stage_dir/textures/``."""
-    stage = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
-    world = UsdGeom.Xform.Define(stage, "/World").GetPrim()
-    stage.SetDefaultPrim(world)
-    Usd.ModelAPI(world).SetKind(Kind.Tokens.assembly)
-    groups = {}
-    for group in ("Shell", "Objects"):
-        prim = UsdGeom.Xform.Define(stage, f"/World/{group}").GetPrim()
-        Usd.ModelAPI(prim).SetKind(Kind.Tokens.group)
-        groups[group] = _Names()
-    ids = [o.instance_id for o in spec.objects]
-    if len(set(ids)) != len(ids):
-        raise ValueError(f"scene {spec.name!r}: field 'instance_id' has duplicates")
-    for obj in spec.objects:
-        group = "Shell" if obj.role == "shell" else "Objects"
-        _write_instance(stage, f"/World/{group}/{groups[group](obj.name)}", obj, stage_dir)
-    if spec.lights or spec.ambient > 0:
-        UsdGeom.Scope.Define(stage, "/World/Lights")
-        names = _Names()
-        names("ambient")
-        for light in spec.lights:
-            _write_light(stage, f"/World/Lights/{names(light.name)}", light)
-        if spec.ambient > 0:
-            dome = UsdLux.DomeLight.Define(stage, "/World/Lights/ambient")
-            dome.CreateIntensityAttr(float(spec.ambient))
-    stage.GetRootLayer().customLayerData = {
-        NS + "name": spec.name,
-        NS + "kind": spec.kind,
-        NS + "seed": int(spec.seed),
-        NS + "roomSize": Gf.Vec3d(*map(float, spec.room_size)),
-        NS + "targetInstanceId": -1 if spec.target_instance_id is None else int(spec.target_instance_id),
-        NS + "ambient": float(spec.ambient),
-        NS + "metadata": to_json(spec.metadata),
-    }
-    return stage.GetRootLayer().ExportToString()
-
-
-def write_stage(spec: SceneSpec, path: Path) -> None:
-    """Write ``spec`` as a ``.usda`` stage at ``path`` (textures in ``path.parent/textures``)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = stage_to_string(spec, path.parent)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
-
-
-# ----------------------------------------------------------------------------------------------- reading
 
 
 def open_stage(path: Path) -> Usd.Stage:
@@ -249,7 +50,9 @@ def open_stage(path: Path) -> Usd.Stage:
 
 
 @dataclass
-class _Part:
+class StagePart:
+    """One mesh prim of an instance: triangles in the mesh frame, placed by ``object_from_mesh``."""
+
     prim_path: str
     name: str
     object_from_mesh: np.ndarray
@@ -264,21 +67,60 @@ class _Part:
 
 
 @dataclass
-class _Instance:
+class StageInstance:
+    """One instance prim: its id, ``world_from_object`` (metres, +z up), ``synthleak:*`` attributes, parts."""
+
     prim: Usd.Prim
     instance_id: int
     world_from_object: np.ndarray  # converted to metres / z up
     attrs: dict[str, Any]
-    parts: list[_Part] = field(default_factory=list)
+    parts: list[StagePart] = field(default_factory=list)
+
+    def text(self, name: str, default: str) -> str:
+        """The string attribute ``synthleak:<name>``, ``default`` where it is not authored."""
+        value = self.attrs[name]
+        return str(value) if value is not None else default
+
+    def extents(self) -> np.ndarray:
+        """``synthleak:extents``, else the bounding-box size of the parts in the object frame."""
+        if self.attrs["extents"] is not None:
+            return np.array(self.attrs["extents"], dtype=np.float64)
+        if not self.parts:
+            return np.zeros(3)
+        pts = np.concatenate(
+            [p.vertices @ p.object_from_mesh[:3, :3].T + p.object_from_mesh[:3, 3] for p in self.parts]
+        )
+        return pts.max(axis=0) - pts.min(axis=0)
+
+    def variant_params(self, path: Path) -> dict[str, Any]:
+        """``synthleak:variantParams`` decoded (``{}`` where absent); a :class:`StageError` naming ``path``."""
+        text = self.attrs["variantParams"]
+        if not text:
+            return {}
+        try:
+            return json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise StageError(
+                f"{path}: prim {self.prim.GetPath()}: synthleak:variantParams is not JSON: {exc}"
+            ) from exc
 
 
 @dataclass
-class _StageContent:
+class StageContent:
+    """Everything read from one stage; holds the stage so that its prims stay valid."""
+
+    stage: Usd.Stage
     path: Path
-    instances: list[_Instance]
+    instances: list[StageInstance]
     lights: list[Light]
     ambient: float
     data: dict[str, Any]
+    """The root layer's ``customLayerData``."""
+
+    @property
+    def target_instance_id(self) -> int | None:
+        value = self.data.get(NS + "targetInstanceId", -1)
+        return None if value is None or int(value) < 0 else int(value)
 
 
 def _attr(prim: Usd.Prim, name: str) -> Any:
@@ -335,18 +177,18 @@ def _connected_shader(inp: UsdShade.Input) -> tuple[UsdShade.Shader | None, str]
     return UsdShade.Shader(info.source.GetPrim()), info.sourceName
 
 
+def _load_texture(source: Path | BytesIO) -> np.ndarray:
+    """(H, W, 3) uint8 array of an image file (alpha dropped, greyscale expanded)."""
+    with Image.open(source) as img:
+        return np.asarray(img.convert("RGB"), dtype=np.uint8).copy()
+
+
 def _packaged_texture(resolved: str) -> np.ndarray:
     """RGB uint8 texture stored inside a USDZ package (``/path/file.usdz[inner.png]``)."""
-    from io import BytesIO
-
-    from PIL import Image
-    from pxr import Ar
-
     asset = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(resolved))
     if asset is None:
         raise OSError(f"cannot open {resolved}")
-    with Image.open(BytesIO(bytes(asset.GetBuffer()))) as img:
-        return np.asarray(img.convert("RGB"), dtype=np.uint8).copy()
+    return _load_texture(BytesIO(bytes(asset.GetBuffer())))
 
 
 @dataclass
@@ -426,7 +268,7 @@ class _Reader:
             raise self.fail(source.GetPrim(), f"texture {asset.path!r} not found")
         if resolved not in self.textures:
             try:
-                self.textures[resolved] = _packaged_texture(resolved) if packaged else load_texture(Path(resolved))
+                self.textures[resolved] = _packaged_texture(resolved) if packaged else _load_texture(Path(resolved))
             except OSError as exc:
                 raise self.fail(source.GetPrim(), f"texture {asset.path!r} unreadable: {exc}") from exc
         out.texture = self.textures[resolved]
@@ -436,7 +278,7 @@ class _Reader:
         return out
 
     # --- meshes
-    def part(self, mesh_prim: Usd.Prim, instance_prim: Usd.Prim) -> _Part:
+    def part(self, mesh_prim: Usd.Prim, instance_prim: Usd.Prim) -> StagePart:
         mesh = UsdGeom.Mesh(mesh_prim)
         points = mesh.GetPointsAttr().Get()
         counts = mesh.GetFaceVertexCountsAttr().Get()
@@ -480,7 +322,7 @@ class _Reader:
         object_from_mesh[:3, 3] *= self.scale
         object_from_mesh[:3] = self.rot @ object_from_mesh[:3]  # the object frame is +z up too (see _to_object)
         name = _attr(mesh_prim, "partName") or mesh_prim.GetName()
-        return _Part(
+        return StagePart(
             prim_path=str(mesh_prim.GetPath()),
             name=str(name),
             object_from_mesh=object_from_mesh,
@@ -525,7 +367,7 @@ class _Reader:
                 return p
         return chain[-1] if chain else prim
 
-    def read(self) -> _StageContent:
+    def read(self) -> StageContent:
         root = self.root()
         lights: list[Light] = []
         dome = 0.0
@@ -583,12 +425,12 @@ class _Reader:
                     "extents",
                 )
             }
-            inst = _Instance(prim, iid, pose, attrs)
+            inst = StageInstance(prim, iid, pose, attrs)
             inst.parts = [self.part(mesh, prim) for mesh in groups[str(prim.GetPath())]]
             instances.append(inst)
         data = dict(self.stage.GetRootLayer().customLayerData or {})
         ambient = float(data[NS + "ambient"]) if NS + "ambient" in data else dome
-        return _StageContent(self.path, instances, lights, ambient, data)
+        return StageContent(self.stage, self.path, instances, lights, ambient, data)
 
     @staticmethod
     def _light_intensity(prim: Usd.Prim) -> float:
@@ -626,90 +468,14 @@ class _Reader:
         return None
 
 
-def _extents(inst: _Instance) -> np.ndarray:
-    if inst.attrs["extents"] is not None:
-        return np.array(inst.attrs["extents"], dtype=np.float64)
-    if not inst.parts:
-        return np.zeros(3)
-    pts = np.concatenate(
-        [p.vertices @ p.object_from_mesh[:3, :3].T + p.object_from_mesh[:3, 3] for p in inst.parts]
-    )
-    return pts.max(axis=0) - pts.min(axis=0)
-
-
-def _params(inst: _Instance, path: Path) -> dict[str, Any]:
-    text = inst.attrs["variantParams"]
-    if not text:
-        return {}
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise StageError(
-            f"{path}: prim {inst.prim.GetPath()}: synthleak:variantParams is not JSON: {exc}"
-        ) from exc
-
-
-def _text(inst: _Instance, name: str, default: str) -> str:
-    value = inst.attrs[name]
-    return str(value) if value is not None else default
-
-
-def _target(data: dict[str, Any]) -> int | None:
-    value = data.get(NS + "targetInstanceId", -1)
-    return None if value is None or int(value) < 0 else int(value)
-
-
-def read_scene_spec(path: Path) -> SceneSpec:
-    """Read a stage back into a :class:`SceneSpec` (object-frame meshes, exact transforms and attributes)."""
-    reader = _Reader(Path(path))  # keeps the stage (and its prims) alive
-    content = reader.read()
-    objects = []
-    for inst in content.instances:
-        parts = []
-        for p in inst.parts:
-            verts = p.vertices @ p.object_from_mesh[:3, :3].T + p.object_from_mesh[:3, 3]
-            texture = p.texture
-            if texture is None:
-                texture = np.full((1, 1, 3), np.round(np.clip(p.base_color, 0, 1) * 255), dtype=np.uint8)
-            uv = p.uv if p.uv is not None else np.zeros((len(verts), 2))
-            parts.append(
-                TexturedPart(p.name, verts, p.faces, uv, texture, p.roughness, p.metallic, p.emissive)
-            )
-        objects.append(
-            PlacedObject(
-                instance_id=inst.instance_id,
-                name=_text(inst, "name", inst.prim.GetName()),
-                model_id=_text(inst, "modelId", inst.prim.GetName()),
-                category=_text(inst, "category", "unknown"),
-                symmetry=_text(inst, "symmetry", "none"),
-                world_from_object=inst.world_from_object,
-                mesh=ObjectMesh(parts),
-                variant_params=_params(inst, content.path),
-                role=_text(inst, "role", "object"),
-                support=_text(inst, "support", "floor"),
-                extents=_extents(inst),
-            )
-        )
-    lights = content.lights
-    data = content.data
-    metadata = json.loads(data[NS + "metadata"]) if data.get(NS + "metadata") else {}
-    return SceneSpec(
-        name=str(data.get(NS + "name", content.path.stem)),
-        kind=str(data.get(NS + "kind", "room")),
-        objects=objects,
-        lights=lights,
-        room_size=tuple(float(v) for v in data.get(NS + "roomSize", (0.0, 0.0, 0.0))),
-        seed=int(data.get(NS + "seed", 0)),
-        target_instance_id=_target(data),
-        ambient=content.ambient,
-        metadata=metadata,
-    )
+def read_stage(path: Path) -> StageContent:
+    """Every instance (with its parts), light and the ambient term of the stage at ``path``."""
+    return _Reader(Path(path)).read()
 
 
 def read_render_scene(path: Path) -> RenderScene:
     """Flatten any stage to world-space triangle meshes (metres, +z up), instance ids, lights, ambient."""
-    reader = _Reader(Path(path))  # keeps the stage (and its prims) alive
-    content = reader.read()
+    content = read_stage(path)
     meshes: list[RenderMesh] = []
     instances: dict[int, InstanceInfo] = {}
     for inst in content.instances:
@@ -732,16 +498,16 @@ def read_render_scene(path: Path) -> RenderScene:
             )
         instances[inst.instance_id] = InstanceInfo(
             instance_id=inst.instance_id,
-            name=_text(inst, "name", inst.prim.GetName()),
-            model_id=_text(inst, "modelId", inst.prim.GetName()),
-            category=_text(inst, "category", "unknown"),
-            symmetry=_text(inst, "symmetry", "none"),
-            role=_text(inst, "role", "object"),
+            name=inst.text("name", inst.prim.GetName()),
+            model_id=inst.text("modelId", inst.prim.GetName()),
+            category=inst.text("category", "unknown"),
+            symmetry=inst.text("symmetry", "none"),
+            role=inst.text("role", "object"),
             world_from_object=inst.world_from_object,
-            extents=_extents(inst),
-            variant_params=_params(inst, content.path),
+            extents=inst.extents(),
+            variant_params=inst.variant_params(content.path),
             prim_path=str(inst.prim.GetPath()),
-            support=_text(inst, "support", "floor"),
+            support=inst.text("support", "floor"),
         )
     return RenderScene(
         meshes=meshes,
@@ -750,24 +516,5 @@ def read_render_scene(path: Path) -> RenderScene:
         ambient=content.ambient,
         source=str(path),
         kind=str(content.data.get(NS + "kind", "room")),
-        target_instance_id=_target(content.data),
+        target_instance_id=content.target_instance_id,
     )
-
-
-# ----------------------------------------------------------------------------------------------- validation
-
-
-def validate_stage(path: Path) -> list[str]:
-    """Error messages of all ``pxr.UsdValidation`` validators (a validator that itself raises is skipped)."""
-    stage = open_stage(Path(path))
-    messages: list[str] = []
-    for validator in UsdValidation.ValidationRegistry().GetOrLoadAllValidators():
-        name = validator.GetMetadata().name
-        try:
-            errors = UsdValidation.ValidationContext([validator]).Validate(stage)
-        except Tf.ErrorException:
-            continue
-        for error in errors:
-            if error.GetType() == UsdValidation.ValidationErrorType.Error:
-                messages.append(f"{path}: {name}: {error.GetMessage()}")
-    return messages
