@@ -153,6 +153,15 @@ GOOD = Path(LIB["chair_ladderback"].source).read_text()
         ),
         (lambda s: s.replace("size = [0.46, 0.50, 0.92]", "size = [0.46, 0.50]"), "size"),
         (lambda s: s.replace('builder = "chair_ladderback"', 'builder = "chair_ladder"'), "builder"),
+        (lambda s: s.replace('support = "floor"\n', ""), "support: missing"),
+        (lambda s: s.replace('id = "chair_ladderback"', 'id = "Chair"'), "id: 'Chair' must match"),
+        (lambda s: s.replace('kind = "wood"', 'kind = "wood"\ntexel_scale = 20'), "textures.frame.texel_scale: must"),
+        (lambda s: s.replace('kind = "wood"', 'kind = "wood"\nsku = "laminate/birch"'), "textures.frame.sku"),
+        (lambda s: s.replace('kind = "wood"', 'kind = "wood"\nshine = 1'), "textures.frame.shine: unknown key"),
+        (lambda s: s.replace("seat_height = { default = 0.46,", "seat_height = { default = true,"),
+         "params.seat_height.default: expected a number"),
+        (lambda s: s.replace("scale_range = [0.92, 1.08]", "scale_range = [1.1, 1.2]"), "scale_range: need 0 < min"),
+        (lambda s: s + "\n[imported]\nsource = 'x'\n", "imported: unknown key"),
     ],
 )
 def test_bad_toml_names_file_and_key(tmp_path, edit, key):

@@ -271,3 +271,27 @@ def test_import_gltf_with_only_the_up_axis(tmp_path) -> None:
     verts = np.concatenate([p.vertices for p in load_library(lib)["chair"].build().parts])
     dist, _ = _nearest(verts, np.asarray(canon.vertices))
     assert dist.max() < 1e-6  # the knob on the front (+y) side is where it was in the canonical mesh
+
+
+def test_a_bad_imported_toml_names_the_file_and_the_key(tmp_path) -> None:
+    """The imported builder reads its TOML with typed tables: a bad edit names the file and the key."""
+    from synthleak.assets.library import load_library
+    from synthleak.assets.model import BUILDERS
+
+    assert BUILDERS["imported"].variant_kinds == ("colour", "scale")
+    lib = _library(tmp_path)
+    toml = Path(import_model(_export(tmp_path, ".obj")[0], "chair", name="kept", library_dir=lib).source)
+    good = toml.read_text()
+    for text, key in (
+        (good.replace('mesh = "part_000.ply"', 'mesh = "gone.ply"'), "textures.part_000.mesh: file"),
+        (good.replace('category = "chair"', 'category = ""'), "category: '' must match"),
+        (good.replace('symmetry = "none"', 'symmetry = "3"'), "symmetry: unknown name '3'"),
+        (good.replace('builder = "imported"', 'builder = "imported_"'), "builder: unknown builder 'imported_'"),
+        (good + '\n[textures.part_001]\nmesh = "part_000.ply"\n', "textures.part_001.file: missing"),
+    ):
+        toml.write_text(text)
+        with pytest.raises(ValueError) as info:
+            load_library(lib)
+        assert f"{toml}: {key}" in str(info.value)
+    toml.write_text(good)
+    assert load_library(lib)["kept"].textures["part_000"].mesh == "part_000.ply"
