@@ -1,6 +1,8 @@
-"""Builder registry and the :class:`PartBuilder` drawing context the parametric builders use.
+"""The parametric builders: :class:`BuilderSpec` (a :class:`~synthleak.assets.model.ModelBuilder` reading the
+model TOML as a :class:`ParametricTable`), the :func:`builder` decorator that registers them, and the
+:class:`PartBuilder` drawing context they use.
 
-A *builder* is a function ``fn(b: PartBuilder, p: dict[str, float]) -> None`` registered with
+A parametric builder is a function ``fn(b: PartBuilder, p: dict[str, float]) -> None`` registered with
 :func:`builder`. ``p`` holds ``width``, ``depth``, ``height`` (the model's declared ``size``) plus every shape
 parameter. Rule for all builders: the built bounding box is exactly ``width x depth x height`` whatever the
 shape parameters (they change proportions inside it: seat height vs backrest, number of shelves, leg
