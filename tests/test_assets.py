@@ -13,11 +13,12 @@ import pytest
 import trimesh
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
-from synthleak.assets import library as library_mod
 from synthleak.assets import primitives as prim
+from synthleak.assets.builders import base as builders_base
 from synthleak.assets.catalog import objects_rows, objects_table
-from synthleak.assets.library import ObjectModel, ParamRange, by_role, get_model, load_library
+from synthleak.assets.library import by_role, get_model, load_library
 from synthleak.assets.mesh import ObjectMesh
+from synthleak.assets.model import ObjectModel, ParamRange
 from synthleak.assets.textures import TEXTURE_KINDS, hsv_shift, make_texture
 from synthleak.assets.variants import VARIANT_KINDS, variant, variant_from_record
 from synthleak.seeding import make_rng
@@ -152,6 +153,15 @@ GOOD = Path(LIB["chair_ladderback"].source).read_text()
         ),
         (lambda s: s.replace("size = [0.46, 0.50, 0.92]", "size = [0.46, 0.50]"), "size"),
         (lambda s: s.replace('builder = "chair_ladderback"', 'builder = "chair_ladder"'), "builder"),
+        (lambda s: s.replace('support = "floor"\n', ""), "support: missing"),
+        (lambda s: s.replace('id = "chair_ladderback"', 'id = "Chair"'), "id: 'Chair' must match"),
+        (lambda s: s.replace('kind = "wood"', 'kind = "wood"\ntexel_scale = 20'), "textures.frame.texel_scale: must"),
+        (lambda s: s.replace('kind = "wood"', 'kind = "wood"\nsku = "laminate/birch"'), "textures.frame.sku"),
+        (lambda s: s.replace('kind = "wood"', 'kind = "wood"\nshine = 1'), "textures.frame.shine: unknown key"),
+        (lambda s: s.replace("seat_height = { default = 0.46,", "seat_height = { default = true,"),
+         "params.seat_height.default: expected a number"),
+        (lambda s: s.replace("scale_range = [0.92, 1.08]", "scale_range = [1.1, 1.2]"), "scale_range: need 0 < min"),
+        (lambda s: s + "\n[imported]\nsource = 'x'\n", "imported: unknown key"),
     ],
 )
 def test_bad_toml_names_file_and_key(tmp_path, edit, key):
@@ -533,7 +543,7 @@ def test_prop_role_key_is_checked(tmp_path):
     d = _props_dir_with(tmp_path, good.replace('role = "prop"\n', ""))  # a props/ model must say it is one
     with pytest.raises(ValueError) as e:
         load_library(d)
-    assert "bad.toml" in str(e.value) and "'role'" in str(e.value)
+    assert "bad.toml: role:" in str(e.value)
     (d / "props" / "bad.toml").write_text(good.replace('role = "prop"', 'role = "clutter"'))
     with pytest.raises(ValueError, match="role"):
         load_library(d)
@@ -571,7 +581,7 @@ def test_library_loaded_twice_builds_identical_meshes():
     """Determinism: a fresh load with a cold texture cache rebuilds every prop byte for byte (textures from
     the model id, layouts from the per-model builder rng)."""
     first = {k: m.build() for k, m in PROPS.items()}
-    library_mod._cached_texture.cache_clear()
+    builders_base._cached_texture.cache_clear()
     again = by_role(load_library(), "prop")
     assert list(again) == PROP_IDS
     for k, mesh in first.items():

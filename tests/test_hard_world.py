@@ -73,7 +73,7 @@ def test_sku_textures_are_one_texture_and_recorded(library):
     b = with_materials(library["table_side"], {"top": "laminate/oak_natural"})
     assert a.material_texture("top") is b.material_texture("top")
     assert not np.array_equal(a.material_texture("legs"), b.material_texture("legs"))
-    assert a.textures["top"]["texel_scale"] == FAMILIES["laminate"][0].texel_scale
+    assert a.textures["top"].texel_scale == FAMILIES["laminate"][0].texel_scale
     v = variant(a, seed=11, magnitude=0.5)
     record = v.record()
     assert record["materials"] == {"top": "laminate/oak_natural"} == model_skus(a)

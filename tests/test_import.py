@@ -12,7 +12,7 @@ import trimesh
 from PIL import Image
 
 from synthleak.assets import importer
-from synthleak.assets.importer import canonical_rotation, import_model, install_library_hook
+from synthleak.assets.importer import canonical_rotation, import_model
 from synthleak.core.types import Camera, RenderMesh
 from synthleak.geometry.poses import look_at
 from synthleak.paths import object_library_dir
@@ -51,25 +51,6 @@ def _snapshot(folder: Path) -> dict[str, str]:
     }
 
 
-@pytest.fixture
-def hooked(monkeypatch):
-    """Install the library hook for one test and undo it afterwards."""
-    from synthleak.assets import library, variants
-
-    for module, attr in (
-        (library, "load_library"),
-        (library, "build_model"),
-        (variants, "build_model"),
-        (variants, "variant"),
-        (library.ObjectModel, "material_texture"),
-    ):
-        monkeypatch.setattr(module, attr, getattr(module, attr))
-    monkeypatch.setattr(library, "_imported_hook", False, raising=False)
-    install_library_hook()
-    yield
-    library._default_library.cache_clear()
-
-
 def _export(tmp_path: Path, suffix: str, front: str = "-z") -> tuple[Path, trimesh.Trimesh]:
     """The canonical mesh written as a y-up, front -z (or ``front``), centimetre file with an offset."""
     canon = _canonical_mesh()
@@ -103,7 +84,7 @@ def _render_colours(parts, camera: Camera, pose: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("suffix", [".obj", ".glb"])
-def test_import_round_trip(tmp_path, hooked, suffix) -> None:
+def test_import_round_trip(tmp_path, suffix) -> None:
     from synthleak.assets.library import load_library
 
     lib = _library(tmp_path)
@@ -132,7 +113,7 @@ def test_import_round_trip(tmp_path, hooked, suffix) -> None:
     assert render_mesh.texture.dtype == np.uint8
 
 
-def test_import_height_scale_and_variants(tmp_path, hooked) -> None:
+def test_import_height_scale_and_variants(tmp_path) -> None:
     from synthleak.assets.variants import variant
 
     lib = _library(tmp_path)
@@ -154,7 +135,7 @@ def test_import_height_scale_and_variants(tmp_path, hooked) -> None:
         again.build({"seat_height": 0.4})
 
 
-def test_import_usd(tmp_path, hooked) -> None:
+def test_import_usd(tmp_path) -> None:
     """A USD file is read through synthleak's stage reader (its own metersPerUnit / upAxis applied)."""
     from test_foreign_stage import write_asset
 
@@ -290,3 +271,27 @@ def test_import_gltf_with_only_the_up_axis(tmp_path) -> None:
     verts = np.concatenate([p.vertices for p in load_library(lib)["chair"].build().parts])
     dist, _ = _nearest(verts, np.asarray(canon.vertices))
     assert dist.max() < 1e-6  # the knob on the front (+y) side is where it was in the canonical mesh
+
+
+def test_a_bad_imported_toml_names_the_file_and_the_key(tmp_path) -> None:
+    """The imported builder reads its TOML with typed tables: a bad edit names the file and the key."""
+    from synthleak.assets.library import load_library
+    from synthleak.assets.model import BUILDERS
+
+    assert BUILDERS["imported"].variant_kinds == ("colour", "scale")
+    lib = _library(tmp_path)
+    toml = Path(import_model(_export(tmp_path, ".obj")[0], "chair", name="kept", library_dir=lib).source)
+    good = toml.read_text()
+    for text, key in (
+        (good.replace('mesh = "part_000.ply"', 'mesh = "gone.ply"'), "textures.part_000.mesh: file"),
+        (good.replace('category = "chair"', 'category = ""'), "category: '' must match"),
+        (good.replace('symmetry = "none"', 'symmetry = "3"'), "symmetry: unknown name '3'"),
+        (good.replace('builder = "imported"', 'builder = "imported_"'), "builder: unknown builder 'imported_'"),
+        (good + '\n[textures.part_001]\nmesh = "part_000.ply"\n', "textures.part_001.file: missing"),
+    ):
+        toml.write_text(text)
+        with pytest.raises(ValueError) as info:
+            load_library(lib)
+        assert f"{toml}: {key}" in str(info.value)
+    toml.write_text(good)
+    assert load_library(lib)["kept"].textures["part_000"].mesh == "part_000.ply"

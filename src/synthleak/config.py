@@ -11,87 +11,14 @@ from __future__ import annotations
 
 import dataclasses
 import tomllib
-import types
-import typing
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-from synthleak.errors import SynthleakError
+from synthleak.errors import ConfigError
 from synthleak.paths import render_configs_dir
-
-
-class ConfigError(SynthleakError, ValueError):
-    """A config file that cannot be used; the message names the file and the key."""
-
-
-# ------------------------------------------------------------------------------------------------- rules
-Rule = Callable[[Any, str], None]
-"""``rule(value, where)`` raises :class:`ConfigError` (``where`` names the file and the key) for a bad value."""
-
-
-def _fmt(value: Any) -> str:
-    return repr(list(value)) if isinstance(value, tuple) else repr(value)
-
-
-def anything(value: Any, where: str) -> None:
-    """Any value of the declared type (free text, switches)."""
-
-
-def at_least(low: float, exclusive: bool = False) -> Rule:
-    """A number ``>= low`` (``> low`` when ``exclusive``)."""
-
-    def rule(value: Any, where: str) -> None:
-        if value < low or (exclusive and value == low):
-            raise ConfigError(f"{where}: must be {'>' if exclusive else '>='} {low:g}, got {_fmt(value)}")
-
-    return rule
-
-
-def within(low: float, high: float, low_open: bool = False, high_open: bool = False) -> Rule:
-    """A number in the interval from ``low`` to ``high`` (``*_open``: that end excluded)."""
-    text = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
-
-    def rule(value: Any, where: str) -> None:
-        if value < low or value > high or (low_open and value == low) or (high_open and value == high):
-            raise ConfigError(f"{where}: must be in {text}, got {_fmt(value)}")
-
-    return rule
-
-
-def one_of(names: Iterable[str] | Callable[[], Iterable[str]]) -> Rule:
-    """A name among ``names`` (a callable is asked when the config loads: a registry, imported lazily)."""
-
-    def rule(value: Any, where: str) -> None:
-        known = list(names() if callable(names) else names)
-        if value not in known:
-            raise ConfigError(f"{where}: unknown name {value!r} (known: {', '.join(known)})")
-
-    return rule
-
-
-def each(item: Rule, nonempty: bool = False) -> Rule:
-    """A list whose items all pass ``item`` (``nonempty``: at least one item)."""
-
-    def rule(value: Any, where: str) -> None:
-        if nonempty and not value:
-            raise ConfigError(f"{where}: must not be empty")
-        for i, v in enumerate(value):
-            item(v, f"{where}[{i}]")
-
-    return rule
-
-
-def ordered(item: Rule = anything) -> Rule:
-    """A ``[min, max]`` pair whose values pass ``item``, with min <= max."""
-
-    def rule(value: Any, where: str) -> None:
-        each(item)(value, where)
-        if value[0] > value[1]:
-            raise ConfigError(f"{where}: [min, max] must be ordered, got {_fmt(value)}")
-
-    return rule
+from synthleak.schema import Rule, anything, at_least, each, from_table, one_of, ordered, within
 
 
 def _tiers() -> Iterable[str]:
@@ -454,70 +381,11 @@ def _deep_merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any
     return merged
 
 
-def _convert(value: Any, hint: Any, where: str) -> Any:
-    origin = typing.get_origin(hint)
-    if dataclasses.is_dataclass(hint):
-        if not isinstance(value, dict):
-            raise ConfigError(f"{where}: expected a table")
-        return _build(hint, value, where)
-    if origin in (list,):
-        (item_hint,) = typing.get_args(hint)
-        if not isinstance(value, list):
-            raise ConfigError(f"{where}: expected a list, got {type(value).__name__}")
-        return [_convert(v, item_hint, f"{where}[{i}]") for i, v in enumerate(value)]
-    if origin is tuple:
-        args = typing.get_args(hint)
-        if not isinstance(value, list) or len(value) != len(args):
-            raise ConfigError(f"{where}: expected a list of {len(args)} values")
-        return tuple(_convert(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True)))
-    if origin in (typing.Union, types.UnionType):
-        for arg in typing.get_args(hint):
-            try:
-                return _convert(value, arg, where)
-            except ConfigError:
-                continue
-        raise ConfigError(f"{where}: value {value!r} matches none of {hint}")
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{where}: expected a number, got {type(value).__name__}")
-        return float(value)
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: expected an integer, got {type(value).__name__}")
-        return value
-    if hint in (str, bool):
-        if not isinstance(value, hint):
-            raise ConfigError(f"{where}: expected {hint.__name__}, got {type(value).__name__}")
-        return value
-    if hint is type(None):
-        if value is not None:
-            raise ConfigError(f"{where}: expected nothing")
-        return None
-    raise ConfigError(f"{where}: unsupported type {hint}")
-
-
-def _build(cls: type, data: dict[str, Any], where: str) -> Any:
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    prefix = f"{where}." if where and not where.endswith(": ") else where
-    for key in data:
-        if key not in names:
-            raise ConfigError(f"{prefix}{key}: unknown key (allowed: {', '.join(sorted(names))})")
-    kwargs = {key: _convert(value, hints[key], f"{prefix}{key}") for key, value in data.items()}
-    try:
-        built = cls(**kwargs)
-    except TypeError as exc:
-        raise ConfigError(f"{where}: {exc}") from exc
-    for key, rule in getattr(cls, "RULES", {}).items():
-        rule(getattr(built, key), f"{prefix}{key}")
-    return built
-
-
 def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> StudyConfig:
     """Validate a plain dict (as read from TOML) into a :class:`StudyConfig`."""
     data = dict(data)
     data.setdefault("name", Path(source).stem)
-    return _build(StudyConfig, data, f"{source}: ")
+    return from_table(StudyConfig, data, f"{source}: ")
 
 
 def check_config(config: StudyConfig, source: str = "<config>") -> StudyConfig:

@@ -12,6 +12,11 @@ class SynthleakError(Exception):
         return str(self.args[0]) if len(self.args) == 1 else super().__str__()
 
 
+class ConfigError(SynthleakError, ValueError):
+    """A config file (a study config, an object library model) that cannot be used; the message names the file
+    and the key."""
+
+
 class StageError(SynthleakError, ValueError):
     """A USD stage (or stage folder) that is missing or cannot be read; the message names the file and, where
     known, the prim."""

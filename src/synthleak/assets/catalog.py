@@ -7,7 +7,7 @@ from typing import Any
 from rich.markup import escape
 from rich.table import Table
 
-from synthleak.assets.library import ObjectModel
+from synthleak.assets.model import MaterialSpec, ObjectModel
 
 
 def objects_rows(library: dict[str, ObjectModel]) -> list[dict[str, Any]]:
@@ -31,7 +31,9 @@ def objects_rows(library: dict[str, ObjectModel]) -> list[dict[str, Any]]:
                 "scale_range": list(m.scale_range),
                 "colour_range": list(m.colour_range),
                 # procedural textures name their kind; an imported model's parts carry image files
-                "textures": {k: v.get("kind", "imported") for k, v in sorted(m.textures.items())},
+                "textures": {
+                    k: v.kind if isinstance(v, MaterialSpec) else "imported" for k, v in sorted(m.textures.items())
+                },
                 "source": m.source,
             }
         )

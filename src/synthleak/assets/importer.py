@@ -15,9 +15,9 @@ without a texture gets a small texture of its base colour (and zero UVs). Bad fi
 naming the file: no geometry, a texture without UVs, a missing texture file, non-finite vertices, a file over
 :data:`MAX_IMPORT_BYTES` (checked before reading).
 
-Imported models have no shape parameters: colour and scale variants work; asking for ``shape`` variants warns
-(:func:`check_variant_kinds`). ``synthleak.assets.library`` reads ``builder = "imported"`` models natively;
-:func:`install_library_hook` is kept for callers of older versions and does nothing then.
+The library reads the result with its ``imported`` builder (:mod:`synthleak.assets.builders.imported`):
+colour and scale variants work; imported models have no shape parameters, so asking for ``shape`` variants
+warns.
 """
 
 from __future__ import annotations
@@ -29,7 +29,6 @@ import re
 import shutil
 import tempfile
 import tomllib
-import warnings
 import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -38,17 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from synthleak.assets.import_store import (
-    IMPORTED_BUILDER,
-    IMPORTED_DIR,
-    build_imported,
-    imported_texture,
-    is_imported,
-    load_imported_models,
-    parse_imported_model,
-    ply_bytes,
-)
-from synthleak.assets.library import SUPPORTS, SYMMETRIES, ObjectModel
+from synthleak.assets.builders.imported import parse_imported_model
+from synthleak.assets.import_store import IMPORTED_BUILDER, IMPORTED_DIR, ply_bytes
+from synthleak.assets.model import SUPPORTS, SYMMETRIES, ObjectModel
 from synthleak.atomic_io import folder_mode
 from synthleak.render.dataset import encode_png
 
@@ -60,19 +51,11 @@ USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 _AXES = {"x": 0, "y": 1, "z": 2}
 
 __all__ = [
-    "IMPORTED_BUILDER",
     "MAX_IMPORT_BYTES",
     "SourcePart",
-    "build_imported",
     "canonical_rotation",
-    "check_variant_kinds",
     "default_front",
     "import_model",
-    "imported_texture",
-    "install_library_hook",
-    "is_imported",
-    "load_imported_models",
-    "parse_imported_model",
     "read_source",
 ]
 
@@ -436,60 +419,3 @@ def _write_folder(target: Path, files: dict[str, bytes]) -> None:
     finally:
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
-
-
-# ------------------------------------------------------------------------------------ variants / library
-def check_variant_kinds(model: ObjectModel, kinds: Sequence[str]) -> None:
-    """Warn when ``shape`` variants are asked of an imported model (it has no shape parameters)."""
-    if is_imported(model) and "shape" in tuple(kinds):
-        warnings.warn(
-            f"model {model.model_id!r} is an imported mesh: shape variants are not available (no shape "
-            "parameters); only colour and scale vary",
-            UserWarning,
-            stacklevel=3,
-        )
-
-
-def install_library_hook() -> bool:
-    """Teach ``synthleak.assets.library`` / ``variants`` about ``builder = "imported"`` at run time where the
-    library does not read imported models itself (it does: then this is a no-op). Returns whether it patched
-    anything.
-
-    Effects: ``load_library`` also reads ``imported/*/*.toml``; ``build_model`` / ``ObjectModel.build`` and
-    ``ObjectModel.material_texture`` use the stored meshes and textures; ``variant`` warns on ``shape``."""
-    from synthleak.assets import library, variants
-
-    if "imported" in library._TOP_KEYS or getattr(library, "_imported_hook", False):
-        return False
-    original_load, original_build = library.load_library, library.build_model
-    original_texture, original_variant = ObjectModel.material_texture, variants.variant
-
-    def load_library(directory: Path | None = None) -> dict[str, ObjectModel]:
-        models = original_load(directory)
-        folder = Path(directory) if directory is not None else _library_dir(None)
-        for mid, model in load_imported_models(folder).items():
-            if mid in models:
-                raise ValueError(f"{model.source}: key 'id': duplicate id {mid!r} (also in {models[mid].source})")
-            models[mid] = model
-        return dict(sorted(models.items()))
-
-    def build_model(model: ObjectModel, params=None, textures=None):  # noqa: ANN001, ANN202 - same as library's
-        if is_imported(model):
-            return build_imported(model, params, textures), []
-        return original_build(model, params, textures)
-
-    def material_texture(self: ObjectModel, material: str) -> np.ndarray:
-        return imported_texture(self, material) if is_imported(self) else original_texture(self, material)
-
-    def variant(model: ObjectModel, seed: int, magnitude: float, kinds: Sequence[str] = variants.VARIANT_KINDS):
-        check_variant_kinds(model, kinds)
-        return original_variant(model, seed, magnitude, kinds)
-
-    library.load_library = load_library
-    library.build_model = build_model
-    variants.build_model = build_model
-    variants.variant = variant
-    ObjectModel.material_texture = material_texture  # type: ignore[method-assign]
-    library._default_library.cache_clear()
-    library._imported_hook = True  # type: ignore[attr-defined]
-    return True

@@ -20,15 +20,13 @@ import dataclasses
 import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from synthleak.assets.model import MaterialSpec, ObjectModel
 from synthleak.assets.textures import make_texture
 from synthleak.seeding import make_rng
-
-if TYPE_CHECKING:
-    from synthleak.assets.library import ObjectModel
 
 SKU_TEXTURE_SIZE = 512
 UNIQUE = "unique"
@@ -59,22 +57,21 @@ class Sku:
         """The SKU's texture (cached, read-only): the same bytes on every product."""
         return _sku_texture(self)
 
-    def slot_spec(self, base: Mapping[str, Any]) -> dict[str, Any]:
-        """A model's material spec (``[textures.<slot>]``) with this SKU's look; ``recolour`` and
-        ``emissive`` of ``base`` are kept."""
-        spec = {key: base[key] for key in ("recolour", "emissive") if key in base}
-        spec.update(
+    def slot_spec(self, base: MaterialSpec) -> MaterialSpec:
+        """A model's material slot (``[textures.<slot>]``) with this SKU's look; ``recolour`` and ``emissive``
+        of ``base`` are kept."""
+        return MaterialSpec(
             kind=self.kind,
-            colour=list(self.colour),
-            feature_scale=self.feature_scale,
-            texel_scale=self.texel_scale,
+            colour=self.colour,
+            colour2=self.colour2,
             roughness=self.roughness,
             metallic=self.metallic,
+            texel_scale=self.texel_scale,
+            feature_scale=self.feature_scale,
+            recolour=base.recolour,
+            emissive=base.emissive,
             sku=self.sku_id,
         )
-        if self.colour2 is not None:
-            spec["colour2"] = list(self.colour2)
-        return spec
 
 
 @functools.lru_cache(maxsize=128)
@@ -199,8 +196,8 @@ def assign_materials(model: ObjectModel, seed: int, sharing: float) -> dict[str,
     out: dict[str, str] = {}
     for slot in sorted(model.textures):
         spec = model.textures[slot]
-        families = FAMILIES_BY_KIND.get(str(spec.get("kind")), ())
-        if model.builder == "imported" or not families or spec.get("emissive") is not None:
+        families = FAMILIES_BY_KIND.get(spec.kind, ()) if isinstance(spec, MaterialSpec) else ()
+        if not families or spec.emissive is not None:
             out[slot] = UNIQUE
             continue
         rng = make_rng(seed, "materials", model.model_id, slot)
@@ -233,4 +230,6 @@ def with_materials(model: ObjectModel, assignment: Mapping[str, str]) -> ObjectM
 
 def model_skus(model: ObjectModel) -> dict[str, str]:
     """Slot -> SKU id of the slots of ``model`` that use a shared SKU."""
-    return {slot: spec["sku"] for slot, spec in sorted(model.textures.items()) if spec.get("sku")}
+    return {
+        slot: spec.sku for slot, spec in sorted(model.textures.items()) if isinstance(spec, MaterialSpec) and spec.sku
+    }

@@ -7,6 +7,7 @@ the front faces +y, units are metres. ``extents`` are the full bounding-box size
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,3 +51,29 @@ class ObjectMesh:
         """Full axis-aligned sizes along x, y, z."""
         lo, hi = self.bounds()
         return hi - lo
+
+
+@dataclass(frozen=True)
+class SupportSurface:
+    """A horizontal top (object frame, metres) on which small objects may stand: height ``z`` and its
+    axis-aligned footprint."""
+
+    z: float
+    x_min: float
+    x_max: float
+    y_min: float
+    y_max: float
+
+    def to_dict(self) -> dict[str, float]:
+        return {
+            "z": self.z,
+            "x_min": self.x_min,
+            "x_max": self.x_max,
+            "y_min": self.y_min,
+            "y_max": self.y_max,
+        }
+
+    def scaled(self, scale: Sequence[float]) -> SupportSurface:
+        """The surface of the object scaled per axis about the canonical origin."""
+        sx, sy, sz = (float(s) for s in scale)
+        return SupportSurface(self.z * sz, self.x_min * sx, self.x_max * sx, self.y_min * sy, self.y_max * sy)

@@ -18,16 +18,17 @@ magnitude grows. Scaling is about the canonical origin (bottom centre), so the f
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from synthleak.assets.builders import SupportSurface
-from synthleak.assets.library import ObjectModel, build_model, get_model
+from synthleak.assets.library import build_model, get_model
 from synthleak.assets.materials import model_skus, with_materials
-from synthleak.assets.mesh import VARIANT_KINDS, ObjectMesh, TexturedPart
+from synthleak.assets.mesh import VARIANT_KINDS, ObjectMesh, SupportSurface, TexturedPart
+from synthleak.assets.model import ObjectModel, get_builder
 from synthleak.assets.textures import hsv_shift
 from synthleak.seeding import make_rng
 
@@ -54,7 +55,7 @@ class Variant:
                 textures = {
                     mat: hsv_shift(self.model.material_texture(mat), *self.colour_shift)
                     for mat, spec in self.model.textures.items()
-                    if spec.get("recolour", True)
+                    if spec.recolour
                 }
             mesh, surfaces = build_model(self.model, self.shape_params, textures)
             s = np.asarray(self.scale, np.float64)
@@ -124,10 +125,14 @@ def variant(model: ObjectModel, seed: int, magnitude: float, kinds: Sequence[str
     if not np.isfinite(magnitude) or magnitude < 0:
         raise ValueError(f"magnitude must be a finite number >= 0, got {magnitude}")
     m = float(magnitude)
-    if "shape" in kinds and model.builder == "imported":
-        from synthleak.assets.importer import check_variant_kinds
-
-        check_variant_kinds(model, kinds)
+    unsupported = [k for k in kinds if k not in get_builder(model.builder).variant_kinds]
+    if unsupported:
+        warnings.warn(
+            f"model {model.model_id!r} ({model.builder} builder): {', '.join(unsupported)} variants are not "
+            f"available; only {', '.join(k for k in kinds if k not in unsupported) or 'none'} vary",
+            UserWarning,
+            stacklevel=2,
+        )
     shape = model.default_params()
     if "shape" in kinds:
         rng = make_rng(seed, "variant", model.model_id, "shape")

@@ -1,6 +1,8 @@
-"""Builder registry and the :class:`PartBuilder` drawing context the parametric builders use.
+"""The parametric builders: :class:`BuilderSpec` (a :class:`~synthleak.assets.model.ModelBuilder` reading the
+model TOML as a :class:`ParametricTable`), the :func:`builder` decorator that registers them, and the
+:class:`PartBuilder` drawing context they use.
 
-A *builder* is a function ``fn(b: PartBuilder, p: dict[str, float]) -> None`` registered with
+A parametric builder is a function ``fn(b: PartBuilder, p: dict[str, float]) -> None`` registered with
 :func:`builder`. ``p`` holds ``width``, ``depth``, ``height`` (the model's declared ``size``) plus every shape
 parameter. Rule for all builders: the built bounding box is exactly ``width x depth x height`` whatever the
 shape parameters (they change proportions inside it: seat height vs backrest, number of shelves, leg
@@ -12,44 +14,58 @@ at the origin) and the support surfaces with it.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 
 from synthleak.assets import primitives as prim
-from synthleak.assets.mesh import ObjectMesh, TexturedPart
+from synthleak.assets.materials import get_sku
+from synthleak.assets.mesh import ObjectMesh, SupportSurface, TexturedPart
+from synthleak.assets.model import (
+    BUILDERS,
+    PROPS_DIR,
+    ROLES,
+    TEXTURE_SEED,
+    MaterialSpec,
+    ModelBuilder,
+    ModelTable,
+    ObjectModel,
+    ParamRange,
+    register_builder,
+    toml_error,
+)
+from synthleak.assets.textures import make_texture
+from synthleak.errors import UnknownNameError
+from synthleak.schema import Rule, from_table, one_of, within
+from synthleak.seeding import make_rng
+
+__all__ = ["BUILDERS", "BuilderSpec", "MaterialSlot", "ParametricTable", "PartBuilder", "SupportSurface", "builder"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class ParametricTable(ModelTable):
+    """The TOML of a parametric model (schema in ``object_library/README.md``)."""
+
+    RULES: ClassVar[dict[str, Rule]] = {
+        **ModelTable.RULES,
+        "role": one_of(ROLES),
+        "texture_size": within(64, 1024),
+    }
+
+    role: str = "furniture"
+    texture_size: int = 512
+    params: dict[str, ParamRange] = field(default_factory=dict)
+    textures: dict[str, MaterialSpec]
 
 
 @dataclass(frozen=True)
-class SupportSurface:
-    """A horizontal top (object frame, metres) on which small objects may stand: height ``z`` and its
-    axis-aligned footprint."""
+class BuilderSpec(ModelBuilder):
+    """A parametric builder: ``fn`` draws the model (see the module docstring) with procedural textures."""
 
-    z: float
-    x_min: float
-    x_max: float
-    y_min: float
-    y_max: float
-
-    def to_dict(self) -> dict[str, float]:
-        return {
-            "z": self.z,
-            "x_min": self.x_min,
-            "x_max": self.x_max,
-            "y_min": self.y_min,
-            "y_max": self.y_max,
-        }
-
-    def scaled(self, scale: Sequence[float]) -> SupportSurface:
-        """The surface of the object scaled per axis about the canonical origin."""
-        sx, sy, sz = (float(s) for s in scale)
-        return SupportSurface(self.z * sz, self.x_min * sx, self.x_max * sx, self.y_min * sy, self.y_max * sy)
-
-
-@dataclass(frozen=True)
-class BuilderSpec:
     name: str
     fn: Callable[[PartBuilder, dict[str, float]], None]
     materials: tuple[str, ...]
@@ -58,8 +74,110 @@ class BuilderSpec:
     """Shape parameters the builder reads: name -> builder default (None: the model must declare it)."""
     optional_materials: tuple[str, ...] = ()
 
+    def parse(self, path: Path, data: dict[str, Any]) -> ObjectModel:
+        t: ParametricTable = from_table(ParametricTable, data, f"{path}: ")
+        if path.parent.name == PROPS_DIR and t.role != "prop":
+            raise toml_error(path, "role", f'a model in {PROPS_DIR}/ must declare role = "prop" (got {t.role!r})')
+        for name, r in t.params.items():
+            key = f"params.{name}"
+            if name not in self.params:
+                raise toml_error(
+                    path, key, f"builder {self.name!r} has no such parameter (it reads {sorted(self.params)})"
+                )
+            if not r.min <= r.default <= r.max:
+                raise toml_error(path, key, f"need min <= default <= max, got {r}")
+            if r.integer and any(v != round(v) for v in (r.default, r.min, r.max)):
+                raise toml_error(path, key, "an integer parameter needs integer default/min/max")
+        missing = [k for k, v in self.params.items() if v is None and k not in t.params]
+        if missing:
+            raise toml_error(path, f"params.{missing[0]}", f"builder {self.name!r} needs it declared")
+        for mat in self.materials:
+            if mat not in t.textures:
+                raise toml_error(
+                    path, f"textures.{mat}", f"builder {self.name!r} draws into material {mat!r}: define it"
+                )
+        for mat, spec in t.textures.items():
+            if mat not in self.materials and mat not in self.optional_materials:
+                raise toml_error(path, f"textures.{mat}", f"builder {self.name!r} does not use this material "
+                                 f"(it uses {list(self.materials) + list(self.optional_materials)})")
+            if spec.sku is not None:
+                raise toml_error(path, f"textures.{mat}.sku", "a slot's shared SKU is drawn by the study "
+                                 "([scenes] material_sharing), not set in the model")
+        return ObjectModel(
+            model_id=t.id,
+            category=t.category,
+            builder=t.builder,
+            symmetry=t.symmetry,
+            support=t.support,
+            size=t.size,
+            params=t.params,
+            scale_range=t.scale_range,
+            textures=t.textures,
+            source=str(path),
+            colour_range=t.colour_range,
+            description=t.description,
+            texture_size=t.texture_size,
+            role=t.role,
+        )
 
-BUILDERS: dict[str, BuilderSpec] = {}
+    def build(
+        self, model: ObjectModel, params: dict[str, float] | None = None, textures: dict[str, np.ndarray] | None = None
+    ) -> tuple[ObjectMesh, list[SupportSurface]]:
+        p: dict[str, float] = {k: float(v) for k, v in self.params.items() if v is not None}
+        p.update(model.default_params())
+        for k, v in (params or {}).items():
+            if k not in model.params:
+                raise UnknownNameError(
+                    f"model {model.model_id!r} has no shape parameter {k!r}; it has {sorted(model.params)}"
+                )
+            if v is not None:
+                p[k] = float(round(v)) if model.params[k].integer else float(v)
+        p["width"], p["depth"], p["height"] = (float(s) for s in model.size)
+        slots = {}
+        for mat, m in model.textures.items():
+            tex = textures[mat] if textures is not None and mat in textures else self.texture(model, mat)
+            slots[mat] = MaterialSlot(
+                texture=np.array(tex),
+                texel_scale=float(m.texel_scale),
+                roughness=float(m.roughness),
+                metallic=float(m.metallic),
+                emissive=m.emissive,
+            )
+        b = PartBuilder(materials=slots, rng=make_rng(TEXTURE_SEED, "builder", model.model_id))
+        self.fn(b, p)
+        return b.finish()
+
+    def texture(self, model: ObjectModel, material: str) -> np.ndarray:
+        """The slot's shared SKU texture, or its own: ``make_texture`` from ``make_rng(0, "texture", model_id,
+        material)`` (cached, read-only)."""
+        spec = model.textures[material]
+        if spec.sku:
+            return get_sku(spec.sku).texture()
+        return _cached_texture(
+            model.model_id, material, spec.kind, spec.colour, spec.colour2, spec.feature_scale, model.texture_size
+        )
+
+
+@functools.lru_cache(maxsize=512)
+def _cached_texture(
+    model_id: str,
+    material: str,
+    kind: str,
+    colour: tuple,
+    colour2: tuple | None,
+    feature_scale: float,
+    size: int,
+) -> np.ndarray:
+    tex = make_texture(
+        kind,
+        make_rng(TEXTURE_SEED, "texture", model_id, material),
+        colour,
+        size,
+        colour2=colour2,
+        feature_scale=feature_scale,
+    )
+    tex.flags.writeable = False
+    return tex
 
 
 def builder(
@@ -72,9 +190,7 @@ def builder(
     pdict = dict(params) if isinstance(params, dict) else dict.fromkeys(params)
 
     def deco(fn):
-        if name in BUILDERS:
-            raise ValueError(f"builder {name!r} registered twice")
-        BUILDERS[name] = BuilderSpec(name, fn, tuple(materials), pdict, tuple(optional_materials))
+        register_builder(BuilderSpec(name, fn, tuple(materials), pdict, tuple(optional_materials)))
         return fn
 
     return deco
