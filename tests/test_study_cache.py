@@ -21,9 +21,9 @@ def counted(monkeypatch: pytest.MonkeyPatch) -> Counter:
     queries localized (serial runs), by wrapping the functions a study calls (``localize_features`` for
     in-process queries: ``test_new_tier_builds_only_its_maps`` checks the counts are not zero by construction)."""
     import synthleak.localize.localizer as localizer
-    import synthleak.localize.mapping as mapping
     import synthleak.render.pipeline as pipeline
-    import synthleak.study as study
+    import synthleak.study.features as features
+    import synthleak.study.maps as maps
 
     calls: Counter = Counter()
 
@@ -36,11 +36,11 @@ def counted(monkeypatch: pytest.MonkeyPatch) -> Counter:
     monkeypatch.setattr(pipeline, "get_renderer", counting("renderer", pipeline.get_renderer))
     monkeypatch.setattr(pipeline, "render_frame_task", counting("frame_tasks", pipeline.render_frame_task))
     monkeypatch.setattr(pipeline, "write_frame", counting("frames", pipeline.write_frame))
-    monkeypatch.setattr(mapping, "build_map", counting("maps", mapping.build_map))
+    monkeypatch.setattr(maps, "build_map", counting("maps", maps.build_map))
     monkeypatch.setattr(localizer.Localizer, "localize", counting("queries", localizer.Localizer.localize))
     monkeypatch.setattr(localizer.Localizer, "localize_features",
                         counting("queries", localizer.Localizer.localize_features))
-    monkeypatch.setattr(study, "save_features", counting("features", study.save_features))
+    monkeypatch.setattr(features, "save_features", counting("features", features.save_features))
     return calls
 
 
@@ -71,7 +71,7 @@ def test_threshold_change_reuses_every_cached_stage(ci_tiny_study: Path, tmp_pat
     run_study(changed, study, progress=False)
     assert dict(counted) == {}  # no renderer, frame, map or query
     after = _markers(study)
-    assert {k for k in after if after[k] != before.get(k)} == {"results/.done.json"}
+    assert {k for k in after if after[k] != before.get(k)} == {"results/.done.json", "plots/.done.json"}
     rows = json.loads((study / "results" / "results.json").read_text())
     rows = rows["rows"] if isinstance(rows, dict) else rows
     assert {(r["delta_r_deg"], r["delta_t_m"]) for r in rows} == set(thresholds)
