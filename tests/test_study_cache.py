@@ -57,9 +57,16 @@ def _markers(study: Path) -> dict[str, str]:
 def test_rerun_is_a_cache_hit(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:
     study = _copy(ci_tiny_study, tmp_path)
     before = _markers(study)
+    report = (study / "report.md").read_bytes()
     run_study(load_config("ci-tiny"), study, progress=False)
     assert dict(counted) == {}
     assert _markers(study) == before
+    assert (study / "report.md").read_bytes() == report  # the report is cached too (its wall times: the first run's)
+    run_study(load_config("ci-tiny"), study, force=["report"], progress=False)
+    assert dict(counted) == {}
+    assert (study / "report.md").read_bytes() != report  # remade: this run's wall times (cached stages ~0 s)
+    results = "results/results.json"
+    assert (study / results).read_bytes() == (ci_tiny_study / results).read_bytes()
 
 
 def test_threshold_change_reuses_every_cached_stage(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:
@@ -107,5 +114,37 @@ def test_force_render_redoes_only_missing_frames(ci_tiny_study: Path, tmp_path: 
 
 
 def test_unknown_force_stage(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="unknown stage"):
+    with pytest.raises(ValueError, match=r"unknown stage.*'frames'.*attack, sweep, world-sweep, report"):
         run_study(load_config("ci-tiny"), tmp_path, force=["frames"], progress=False)
+    assert not (tmp_path / "dataset").exists()
+
+
+@pytest.mark.slow
+def test_force_sweep_redoes_only_the_sweep(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:
+    """A variant-magnitude sweep runs the attacker-side stages on its point (the study's rooms, renders and maps
+    reused); ``--force sweep`` redoes the point's stages (its frames exist: none re-rendered) and nothing of the
+    study's; a rerun does nothing."""
+    study = _copy(ci_tiny_study, tmp_path)
+    base = load_config("ci-tiny")
+    config = dataclasses.replace(base, sweep=dataclasses.replace(base.sweep, kinds=["colour"], magnitudes=[0.6]))
+    n_objects = len(json.loads((study / "dataset" / "stages" / "index.json").read_text())["attacker_objects"])
+    run_study(config, study, progress=False)
+    assert counted["frames"] == n_objects * base.render.attacker_frames and counted["maps"] == 0
+    point = study / "sweep" / "colour-0.6"
+    assert sorted(p.name for p in point.iterdir()) == ["dataset", "features", "queries"]
+    assert not (point / "dataset" / "scenes").exists()  # attackers only: the rooms are the study's
+    rows = (study / "results" / "sweep.json").read_bytes()
+    assert {(r["kind"], r["magnitude"]) for r in json.loads(rows)} == {("colour", 0.6)}
+    study_markers = {k: v for k, v in _markers(study).items() if not k.startswith("sweep/")}
+    counted.clear()
+    run_study(config, study, force=["sweep"], progress=False)
+    from synthleak.study import read_query_log
+
+    sent = sum(len(read_query_log(p)) for p in sorted((point / "queries").glob("*/*/queries.jsonl")))
+    assert counted["frames"] == counted["maps"] == 0
+    assert counted["queries"] == sent > 0 and counted["features"] > 0
+    assert {k: v for k, v in _markers(study).items() if not k.startswith("sweep/")} == study_markers
+    assert (study / "results" / "sweep.json").read_bytes() == rows
+    counted.clear()
+    run_study(config, study, progress=False)
+    assert dict(counted) == {}
