@@ -19,11 +19,12 @@ import shutil
 import time
 from pathlib import Path
 
+from synthleak.attack.local_poses import sfm_model
 from synthleak.config import load_config
 from synthleak.evaluate.compare import side_by_side_markdown
 from synthleak.evaluate.sfm_summary import sfm_objects_markdown
 from synthleak.render.dataset import load_sequence
-from synthleak.study import StudyPaths, _sfm_model, attack_rows, load_index
+from synthleak.study import StudyPaths, attack_rows, load_index
 
 
 def main() -> None:
@@ -38,7 +39,7 @@ def main() -> None:
     paths = StudyPaths(args.study)
     config = load_config(args.config)
     aligners = args.aligners.split(",")
-    logs = {(tier, room["name"]): paths.queries / tier / room["name"] / "queries.jsonl"
+    logs = {(tier, room["name"]): paths.query_log(tier, room["name"])
             for tier in config.localize.tiers for room in load_index(paths.dataset)["rooms"]}
     missing = [str(p) for p in logs.values() if not p.is_file()]
     if missing:
@@ -52,10 +53,10 @@ def main() -> None:
     if args.local_model == "sfm":
         objects = load_index(paths.dataset)["attacker_objects"]
         if args.rebuild_sfm:
-            shutil.rmtree(paths.root / "sfm", ignore_errors=True)
+            shutil.rmtree(paths.sfm, ignore_errors=True)
         start = time.perf_counter()
-        models = {o["id"]: _sfm_model(config, paths.root / "sfm", o["id"],
-                                      load_sequence(paths.dataset / "attackers" / o["id"])) for o in objects}
+        models = {o["id"]: sfm_model(load_sequence(paths.attacker(o["id"])), paths.sfm_dir(o["id"]), config.seed)
+                  for o in objects}
         print(f"## SfM local models ({time.perf_counter() - start:.1f} s now; build seconds per object below)\n")
         print(sfm_objects_markdown(models))
     rows = rows_for(args.local_model)

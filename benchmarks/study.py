@@ -135,13 +135,20 @@ class StageTimer:
 
 
 def instrument(timer: StageTimer) -> None:
-    """Wrap the study's stage functions (module attributes looked up at call time)."""
+    """Wrap the study's stages: the ``run`` of each stage class (a study package of stages), or the stage
+    functions (older synthleak: module attributes looked up at call time). A world sweep's stages count in
+    their own rows; a variant sweep's in ``sweep``."""
     import synthleak.render.pipeline as pipeline
     import synthleak.scene.generate as generate
     import synthleak.study as study
 
     generate.write_study_stages = timer.wrap("stages", generate.write_study_stages)
     pipeline.render_stages = timer.wrap("render", pipeline.render_stages)
+    if hasattr(study, "STAGE_TYPES"):
+        for cls in study.STAGE_TYPES:
+            if cls.name in ROWS and cls.name != "render":  # render: split into the two rows above
+                cls.run = timer.wrap(cls.name, cls.run)
+        return
     for row, attr in (("maps", "stage_maps"), ("features", "stage_features"), ("queries", "stage_queries"),
                       ("attack", "stage_attack"), ("sweep", "stage_sweep"), ("report", "stage_report")):
         if hasattr(study, attr):  # older synthleak had no features stage

@@ -22,7 +22,7 @@ import pytest
 from synthleak.config import load_config
 from synthleak.evaluate.defense_sweep import defense_tradeoff, passes_defense
 from synthleak.localize.defense import DefensePolicy
-from synthleak.study import StudyPaths, defense_queries, read_query_log, run_study, stage_queries
+from synthleak.study import QueriesStage, StudyContext, StudyPaths, defense_queries, read_query_log, run_study
 
 X, K = 0.1, 3
 """The policy under test (on ci-tiny it refuses some queries of each kind and accepts others)."""
@@ -137,10 +137,15 @@ def test_http_server_decisions_equal_the_offline_sweep(ci_tiny_study, tmp_path):
         load_config("ci-tiny").attack, queries_per_object=4))
     room = "room_000"
     map_dir = ci_tiny_study / "maps" / "sift" / room
+    study = tmp_path / "study"  # the fixture's renders and maps, this test's queries
+    study.mkdir()
+    for folder in ("dataset", "maps"):
+        (study / folder).symlink_to(ci_tiny_study / folder)
     with LocalizerPool(map_dir, 1, config.localize, DefensePolicy(X, K, enabled=True)) as pool, \
             _Server(create_app(pool)) as url:
-        logs = stage_queries(config, StudyPaths(ci_tiny_study), {("sift", room): map_dir}, set(), False,
-                             server_url=url, out_root=tmp_path / "queries")
+        ctx = StudyContext(config, StudyPaths(study), progress=False, server_url=url)
+        stage = QueriesStage()
+        logs = stage.make(ctx, [unit for unit in stage.units(ctx) if unit.item == ("sift", room)])
     served = read_query_log(logs[("sift", room)])
     plain = {(q["sequence"], q["frame"]): q for q in _logs(ci_tiny_study)[room]}
     assert len(served) >= 16

@@ -254,8 +254,8 @@ def test_plots_write_pngs(tmp_path):
 
 def test_recall_funnel_counts_each_step() -> None:
     """Present pairs only, one per (tier, room, object) at the first aligner/thresholds; each step counted."""
+    from synthleak.evaluate.attack_pairs import server_funnel
     from synthleak.evaluate.tables import recall_funnel, recall_funnel_markdown
-    from synthleak.study import _server_funnel
 
     records = [  # one pair's query log: 3 sent, 2 localized, 1 of them mostly on instance 7
         {"success": True, "inlier_instance_counts": {"7": 40, "3": 12}, "retrieved": ["m0", "m2"]},
@@ -264,18 +264,18 @@ def test_recall_funnel_counts_each_step() -> None:
         {"success": False, "inlier_instance_counts": {}, "retrieved": ["m2", "m1"]},
     ]
     visible = {"m0": {3}, "m1": {3}, "m2": {3, 7}}  # only m2 sees instance 7: queries 0 and 2 retrieve it
-    assert _server_funnel(records, 7, {7: 120, 3: 50}, {}, visible) == {
+    assert server_funnel(records, 7, {7: 120, 3: 50}, {}, visible) == {
         "map_points_on_target": 120, "n_retrieved_target": 2, "n_target_top": 1, "n_lookalike_top": None}
-    assert _server_funnel(records, 7, None, {}) == {"map_points_on_target": None, "n_retrieved_target": None,
+    assert server_funnel(records, 7, None, {}) == {"map_points_on_target": None, "n_retrieved_target": None,
                                                    "n_target_top": 1, "n_lookalike_top": None}
     # an absent pair: the localized queries whose inliers lie mostly on a look-alike of the queried object
-    assert _server_funnel(records, None, {7: 1}, {3: "shares_sku"}, visible) == {
+    assert server_funnel(records, None, {7: 1}, {3: "shares_sku"}, visible) == {
         "map_points_on_target": None, "n_retrieved_target": None, "n_target_top": None, "n_lookalike_top": 1}
-    assert _server_funnel(records, None, {7: 1}, {})["n_lookalike_top"] == 0
+    assert server_funnel(records, None, {7: 1}, {})["n_lookalike_top"] == 0
     remote = [{k: v for k, v in q.items() if k != "retrieved"} for q in records]  # a server names no images
-    assert _server_funnel(remote, 7, {7: 120}, {}, visible)["n_retrieved_target"] is None
+    assert server_funnel(remote, 7, {7: 120}, {}, visible)["n_retrieved_target"] is None
     with pytest.raises(ValueError, match="'m9' is not an image of this map"):
-        _server_funnel([{**records[0], "retrieved": ["m9"]}], 7, None, {}, visible)
+        server_funnel([{**records[0], "retrieved": ["m9"]}], 7, None, {}, visible)
 
     def row(obj, present, points, localized, top, decision, aligner="alg1", magnitude=None, retrieved=None):
         return {"tier": "sift", "room": "r0", "object": obj, "aligner": aligner, "delta_r_deg": 10.0,

@@ -21,9 +21,9 @@ def counted(monkeypatch: pytest.MonkeyPatch) -> Counter:
     queries localized (serial runs), by wrapping the functions a study calls (``localize_features`` for
     in-process queries: ``test_new_tier_builds_only_its_maps`` checks the counts are not zero by construction)."""
     import synthleak.localize.localizer as localizer
-    import synthleak.localize.mapping as mapping
     import synthleak.render.pipeline as pipeline
-    import synthleak.study as study
+    import synthleak.study.features as features
+    import synthleak.study.maps as maps
 
     calls: Counter = Counter()
 
@@ -36,11 +36,11 @@ def counted(monkeypatch: pytest.MonkeyPatch) -> Counter:
     monkeypatch.setattr(pipeline, "get_renderer", counting("renderer", pipeline.get_renderer))
     monkeypatch.setattr(pipeline, "render_frame_task", counting("frame_tasks", pipeline.render_frame_task))
     monkeypatch.setattr(pipeline, "write_frame", counting("frames", pipeline.write_frame))
-    monkeypatch.setattr(mapping, "build_map", counting("maps", mapping.build_map))
+    monkeypatch.setattr(maps, "build_map", counting("maps", maps.build_map))
     monkeypatch.setattr(localizer.Localizer, "localize", counting("queries", localizer.Localizer.localize))
     monkeypatch.setattr(localizer.Localizer, "localize_features",
                         counting("queries", localizer.Localizer.localize_features))
-    monkeypatch.setattr(study, "save_features", counting("features", study.save_features))
+    monkeypatch.setattr(features, "save_features", counting("features", features.save_features))
     return calls
 
 
@@ -57,9 +57,16 @@ def _markers(study: Path) -> dict[str, str]:
 def test_rerun_is_a_cache_hit(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:
     study = _copy(ci_tiny_study, tmp_path)
     before = _markers(study)
+    report = (study / "report.md").read_bytes()
     run_study(load_config("ci-tiny"), study, progress=False)
     assert dict(counted) == {}
     assert _markers(study) == before
+    assert (study / "report.md").read_bytes() == report  # the report is cached too (its wall times: the first run's)
+    run_study(load_config("ci-tiny"), study, force=["report"], progress=False)
+    assert dict(counted) == {}
+    assert (study / "report.md").read_bytes() != report  # remade: this run's wall times (cached stages ~0 s)
+    results = "results/results.json"
+    assert (study / results).read_bytes() == (ci_tiny_study / results).read_bytes()
 
 
 def test_threshold_change_reuses_every_cached_stage(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:
@@ -71,7 +78,7 @@ def test_threshold_change_reuses_every_cached_stage(ci_tiny_study: Path, tmp_pat
     run_study(changed, study, progress=False)
     assert dict(counted) == {}  # no renderer, frame, map or query
     after = _markers(study)
-    assert {k for k in after if after[k] != before.get(k)} == {"results/.done.json"}
+    assert {k for k in after if after[k] != before.get(k)} == {"results/.done.json", "plots/.done.json"}
     rows = json.loads((study / "results" / "results.json").read_text())
     rows = rows["rows"] if isinstance(rows, dict) else rows
     assert {(r["delta_r_deg"], r["delta_t_m"]) for r in rows} == set(thresholds)
@@ -107,5 +114,37 @@ def test_force_render_redoes_only_missing_frames(ci_tiny_study: Path, tmp_path: 
 
 
 def test_unknown_force_stage(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="unknown stage"):
+    with pytest.raises(ValueError, match=r"unknown stage.*'frames'.*attack, sweep, world-sweep, report"):
         run_study(load_config("ci-tiny"), tmp_path, force=["frames"], progress=False)
+    assert not (tmp_path / "dataset").exists()
+
+
+@pytest.mark.slow
+def test_force_sweep_redoes_only_the_sweep(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:
+    """A variant-magnitude sweep runs the attacker-side stages on its point (the study's rooms, renders and maps
+    reused); ``--force sweep`` redoes the point's stages (its frames exist: none re-rendered) and nothing of the
+    study's; a rerun does nothing."""
+    study = _copy(ci_tiny_study, tmp_path)
+    base = load_config("ci-tiny")
+    config = dataclasses.replace(base, sweep=dataclasses.replace(base.sweep, kinds=["colour"], magnitudes=[0.6]))
+    n_objects = len(json.loads((study / "dataset" / "stages" / "index.json").read_text())["attacker_objects"])
+    run_study(config, study, progress=False)
+    assert counted["frames"] == n_objects * base.render.attacker_frames and counted["maps"] == 0
+    point = study / "sweep" / "colour-0.6"
+    assert sorted(p.name for p in point.iterdir()) == ["dataset", "features", "queries"]
+    assert not (point / "dataset" / "scenes").exists()  # attackers only: the rooms are the study's
+    rows = (study / "results" / "sweep.json").read_bytes()
+    assert {(r["kind"], r["magnitude"]) for r in json.loads(rows)} == {("colour", 0.6)}
+    study_markers = {k: v for k, v in _markers(study).items() if not k.startswith("sweep/")}
+    counted.clear()
+    run_study(config, study, force=["sweep"], progress=False)
+    from synthleak.study import read_query_log
+
+    sent = sum(len(read_query_log(p)) for p in sorted((point / "queries").glob("*/*/queries.jsonl")))
+    assert counted["frames"] == counted["maps"] == 0
+    assert counted["queries"] == sent > 0 and counted["features"] > 0
+    assert {k: v for k, v in _markers(study).items() if not k.startswith("sweep/")} == study_markers
+    assert (study / "results" / "sweep.json").read_bytes() == rows
+    counted.clear()
+    run_study(config, study, progress=False)
+    assert dict(counted) == {}

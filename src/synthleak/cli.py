@@ -221,7 +221,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("config")
     p.add_argument("--out", required=True)
     p.add_argument("--force", action="append", metavar="STAGE",
-                   help="redo a stage: render, maps, features, queries, attack, report (repeatable)")
+                   help="redo a stage: render, maps, features, queries, attack, sweep, world-sweep, report "
+                        "(repeatable; sweep / world-sweep redo every stage of their points)")
     p.add_argument("--server", help="attack a running HTTP server instead of in-process localizers")
     p.add_argument("--workers", type=int, default=None,
                    help="worker processes for frames, maps and queries (default: the usable cores; 1: no pool)")

@@ -1,0 +1,62 @@
+"""The attack stage: every (room, attacker object) pair attacked from the query logs and scored."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from synthleak.attack.local_poses import attacker_local_poses
+from synthleak.cache import cache_key, done_key
+from synthleak.config import StudyConfig
+from synthleak.evaluate.attack_pairs import ServerLabels, object_rows
+from synthleak.evaluate.defense_online import without_defense
+from synthleak.evaluate.query_log import read_query_log
+from synthleak.evaluate.tables import apply_presence_decisions, read_results, write_results
+from synthleak.render.dataset import load_sequence
+from synthleak.study.context import Stage, StudyContext, Unit
+from synthleak.study.paths import StudyPaths, load_index
+
+
+def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, str], Path],
+                magnitude: float | None = None, kind: str | None = None, undefended: bool = False
+                ) -> list[dict[str, Any]]:
+    """One results row per (room, attacker object, tier, aligner, thresholds) of ``logs``, presence decided
+    leave-one-scene-out and placement scored against the room's ground truth. The attacker objects are those
+    of ``paths.dataset`` (a variant-sweep point's own; rows tagged ``magnitude`` and ``kind``). ``undefended``:
+    attack the answers the server gave before its online defense refused some (the same logged queries)."""
+    rooms = {room["name"]: room for room in load_index(paths.scene_dataset)["rooms"]}
+    room_objects = {name: load_sequence(paths.scene(name)).objects_by_id() for name in rooms}
+    by_object: dict[tuple[str, str], dict[str, list[dict]]] = {}  # each log parsed once, not once per object
+    for name, log in logs.items():
+        for q in read_query_log(log):
+            q = without_defense(q) if undefended else q
+            by_object.setdefault(name, {}).setdefault(q["attacker_object"], []).append(q)
+    servers = {name: ServerLabels.read(paths.map_dir(*name)) for name in logs}
+    rows: list[dict[str, Any]] = []
+    for obj in load_index(paths.dataset)["attacker_objects"]:
+        seq = load_sequence(paths.attacker(obj["id"]))
+        local, object_from_local = attacker_local_poses(config.attack.local_model, seq, paths.sfm_dir(obj["id"]),
+                                                        config.seed)
+        target = seq.objects_by_id()[seq.target_instance_id]
+        records = {name: by_object.get(name, {}).get(obj["id"], []) for name in logs}
+        rows += object_rows(config.attack, obj, target, local, object_from_local, records, rooms, room_objects,
+                            servers, magnitude, kind)
+    return apply_presence_decisions(rows, config.attack.presence)
+
+
+class AttackStage(Stage):
+    """``results/results.{csv,json}``, keyed by the query logs and the ``[attack]`` section (a threshold change
+    re-runs only the attack and the report)."""
+
+    name = "attack"
+
+    def units(self, ctx: StudyContext) -> list[Unit]:
+        query_keys = [done_key(log.parent) for _, log in sorted(ctx.logs().items())]
+        return [Unit(ctx.paths.results, cache_key("attack", query_keys, ctx.section("attack")))]
+
+    def make(self, ctx: StudyContext, todo: list[Unit]) -> list[dict[str, Any]]:
+        if not todo:
+            return read_results(ctx.paths.results / "results.json")
+        rows = attack_rows(ctx.config, ctx.paths, ctx.logs())
+        write_results(rows, ctx.paths.results)
+        return rows

@@ -1,0 +1,105 @@
+"""The queries stage: every planned image sent to each (tier, room) server, one JSON line per query."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from synthleak.atomic_io import atomic_write_text
+from synthleak.cache import cache_key, done_key
+from synthleak.config import StudyConfig, config_to_dict
+from synthleak.evaluate.query_log import query_line
+from synthleak.executors import chunks
+from synthleak.localize.client import HttpLocalizer
+from synthleak.localize.feature_files import load_features
+from synthleak.localize.localizer import Localizer
+from synthleak.study.context import Stage, StudyContext, Unit
+from synthleak.study.plan import query_plans
+from synthleak.study.workers import QUERIES_PER_TASK, clear_worker_cache, worker_cached
+
+
+def make_localizer(map_dir: Path, config: StudyConfig | Any, server_url: str | None, defense: Any = None):
+    """The study's server for one map: in process (running the ``defense`` policy if given) or over HTTP (the
+    remote server applies its own policy)."""
+    if server_url:
+        return HttpLocalizer(server_url)
+    localize = config.localize if isinstance(config, StudyConfig) else config
+    return Localizer.load(map_dir, localize, defense=defense)
+
+
+@dataclass
+class QueryTask:
+    """Consecutive planned queries of one (tier, room) server, for one worker."""
+
+    map_dir: Path
+    localize: Any
+    server_url: str | None
+    tier: str
+    room: str
+    items: list[dict[str, Any]]
+    """Plan entries plus ``_camera`` (the intrinsics) and ``_image`` (the image's path; sent to a server) or
+    ``_features`` (its cached features; matched in process)."""
+    defense: Any = None
+    """The enabled :class:`~synthleak.localize.defense.DefensePolicy` the in-process server applies, or None."""
+
+
+def query_task(task: QueryTask) -> list[str]:
+    """Localize each image of the task; one JSON line per query, in the task's order (a worker task)."""
+    key = repr((str(task.map_dir), done_key(task.map_dir), task.server_url, config_to_dict(task.localize),
+                task.defense))
+    localizer = worker_cached(key, lambda: make_localizer(task.map_dir, task.localize, task.server_url,
+                                                          task.defense))
+    lines = []
+    for entry in task.items:
+        camera = entry["_camera"]
+        if "_features" in entry:
+            features, size = load_features(Path(entry["_features"]))
+            if size != (camera.width, camera.height):
+                raise ValueError(f"{entry['_features']}: features of a {size[0]}x{size[1]} image but the camera "
+                                 f"is {camera.width}x{camera.height}")
+            result = localizer.localize_features(features, camera)
+        else:
+            result = localizer.localize(Path(entry["_image"]).read_bytes(), camera)
+        lines.append(query_line(entry, task.tier, task.room, result, task.defense, remote=bool(task.server_url)))
+    return lines
+
+
+class QueriesStage(Stage):
+    """Each server's log ``queries/<tier>/<room>/queries.jsonl``, in plan order whatever the executor.
+
+    In process, each image's cached features (the features stage) are matched against every room's map; with
+    ``[defense] enabled`` the in-process server applies the policy to every query
+    (:mod:`synthleak.evaluate.defense_online`). With a server URL the images themselves are sent."""
+
+    name = "queries"
+
+    def units(self, ctx: StudyContext) -> list[Unit]:
+        policy = ctx.defense
+        return [Unit(ctx.paths.query_dir(tier, room),
+                     cache_key("queries", done_key(map_dir), done_key(ctx.paths.dataset), ctx.genuine,
+                               ctx.config.attack.queries_per_object, ctx.server_url,
+                               *([repr(policy)] if policy else [])), (tier, room))
+                for (tier, room), map_dir in ctx.servers().items()]
+
+    def make(self, ctx: StudyContext, todo: list[Unit]) -> dict[tuple[str, str], Path]:
+        """Returns every server's log (made now or before)."""
+        plans = query_plans(ctx) if todo else {}
+        counts, tasks = [], []
+        for unit in todo:
+            tier, room = unit.item
+            plan = [dict(item) for item in plans[room]]
+            if ctx.server_url is None:
+                for item in plan:
+                    item["_features"] = str(ctx.paths.features_file(tier, item["sequence"], item["frame"]))
+                    del item["_image"]
+            parts = [QueryTask(ctx.paths.map_dir(tier, room), ctx.config.localize, ctx.server_url, tier, room, c,
+                               None if ctx.server_url else ctx.defense) for c in chunks(plan, QUERIES_PER_TASK)]
+            counts.append(len(parts))
+            tasks += parts
+        results = iter(ctx.executor.map(query_task, tasks, "queries", ctx.progress))
+        clear_worker_cache()
+        for unit, n_tasks in zip(todo, counts, strict=True):
+            lines = [line for _ in range(n_tasks) for line in next(results)]
+            atomic_write_text(ctx.paths.query_log(*unit.item), "\n".join(lines) + "\n")
+        return ctx.logs()

@@ -1,0 +1,68 @@
+"""Run or resume a whole study: every stage in order over one context."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from synthleak.atomic_io import atomic_write_text
+from synthleak.config import StudyConfig, check_config
+from synthleak.executors import Executor, make_executor
+from synthleak.study.attack import AttackStage
+from synthleak.study.context import Stage, StudyContext
+from synthleak.study.features import FeaturesStage
+from synthleak.study.maps import MapsStage
+from synthleak.study.paths import StudyPaths
+from synthleak.study.queries import QueriesStage
+from synthleak.study.render import RenderStage
+from synthleak.study.report import ReportStage
+from synthleak.study.sweep import SweepStage, WorldSweepStage
+from synthleak.study.tiers import check_tiers_installed
+
+STAGE_TYPES: tuple[type[Stage], ...] = (RenderStage, MapsStage, FeaturesStage, QueriesStage, AttackStage, SweepStage,
+                                        WorldSweepStage, ReportStage)
+"""A study's stages, in the order they run."""
+
+STAGES = tuple(stage.name for stage in STAGE_TYPES)
+"""Their names (``--force``)."""
+
+
+def check_force(force: Sequence[str]) -> frozenset[str]:
+    """The stage names of ``force``; a ValueError naming the unknown ones and the stages."""
+    unknown = set(force) - set(STAGES)
+    if unknown:
+        raise ValueError(f"--force: unknown stage(s) {sorted(unknown)} (stages: {', '.join(STAGES)})")
+    return frozenset(force)
+
+
+def study_stages(ctx: StudyContext) -> list[Stage]:
+    """The stages a study runs (no features stage against a remote server: it is sent the images)."""
+    return [stage() for stage in STAGE_TYPES if not (stage is FeaturesStage and ctx.server_url is not None)]
+
+
+def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_url: str | None = None,
+              progress: bool = True, workers: int = 1, executor: str | Executor = "local",
+              address: str | None = None) -> Path:
+    """Run or resume every stage of a study; returns the report's path.
+
+    Rendering, maps and queries run over ``executor``: ``"local"`` with ``workers`` processes, ``"ray"``
+    (``address``: a running cluster, e.g. ``"auto"``; None starts a local Ray), or an
+    :class:`~synthleak.executors.Executor`. Result files are the same bytes whatever the executor."""
+    if isinstance(executor, str):
+        with make_executor(executor, workers, address) as pool:
+            return run_study(config, out, force, server_url, progress, workers, pool)
+
+    forced = check_force(force)
+    check_config(config, config.name)  # a config built in Python fails here, not after the renders
+    check_tiers_installed(config.localize.tiers)
+    paths = StudyPaths(Path(out))
+    paths.root.mkdir(parents=True, exist_ok=True)
+    ctx = StudyContext(config, paths, forced, progress, executor, server_url)
+    for stage in study_stages(ctx):
+        start = time.perf_counter()
+        ctx.outputs[stage.name] = stage.run(ctx)
+        ctx.timings[stage.timings_label()] = round(time.perf_counter() - start, 2)
+    atomic_write_text(paths.timings, json.dumps(ctx.timings, indent=1))
+    return ctx.outputs["report"]
