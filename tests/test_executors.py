@@ -177,13 +177,19 @@ def test_ray_executor_gives_identical_files(ci_tiny_study: Path, tmp_path: Path)
 
 def test_ray_two_node_cluster_gives_identical_files(ci_tiny_study: Path, tmp_path: Path) -> None:
     """`synthleak study ci-tiny --executor ray --address` on a simulated two-node Ray cluster, one CPU per node: the
-    driver's node runs one task at a time, so every map of two or more tasks sends some to the other node, whose
-    workers share nothing with the driver but the study folder. Same bytes as the serial run: no task relies on
+    driver's node runs one task at a time, so a map of two or more tasks sends some to the other node (checked),
+    whose workers share nothing with the driver but the study folder. Same bytes as the serial run: no task relies on
     state of the driver (globals, registrations, caches, its environment beyond what the executor passes on)."""
     pytest.importorskip("ray")
     from ray.cluster_utils import Cluster
 
     from synthleak import cli
+
+    def node_of_task(_: int) -> str:  # defined here: Ray ships it by value, the test module need not import there
+        import ray
+
+        time.sleep(0.5)
+        return ray.get_runtime_context().get_node_id()
 
     expected = result_digests(ci_tiny_study)
     study = _stripped_copy(ci_tiny_study, tmp_path)
@@ -191,7 +197,8 @@ def test_ray_two_node_cluster_gives_identical_files(ci_tiny_study: Path, tmp_pat
     try:
         cluster.add_node(num_cpus=1)
         cluster.wait_for_nodes()
-        assert len(cluster.list_all_nodes()) == 2
+        with make_executor("ray", 2, cluster.address) as executor:  # the cluster spreads a map over both nodes
+            assert executor.workers == 2 and len(set(executor.map(node_of_task, range(4)))) == 2
         args = ["study", "ci-tiny", "--out", str(study), "--quiet", "--executor", "ray", "--address", cluster.address]
         assert cli.main(args + [f"--force={stage}" for stage in FORCED]) == 0
     finally:
