@@ -50,7 +50,7 @@ BAD_VALUES = [  # (section, key, value, what the message must say)
     ("localize", "retrieval", "boww", r"localize\.retrieval: unknown name 'boww'.*exhaustive"),
     ("localize", "top_k", 0, r"localize\.top_k: must be >= 1"),
     ("localize", "max_keypoints", 0, r"localize\.max_keypoints: must be >= 1"),
-    ("localize", "pnp_max_error_px", 0.0, r"localize\.pnp_max_error_px: must be > 0"),
+    ("localize", "pnp_max_error_px", -1.0, r"localize\.pnp_max_error_px: must be >= 0"),
     ("localize", "min_inliers", -1, r"localize\.min_inliers: must be >= 0"),
     ("localize", "pairs_per_image", 0, r"localize\.pairs_per_image: must be >= 1"),
     ("attack", "aligners", ["alg2"], r"attack\.aligners\[0\]: unknown name 'alg2'.*alg1"),

@@ -1,5 +1,5 @@
 """Executors: results in input order, clear errors, and byte-identical study outputs on `ci-tiny` whatever the
-executor (serial, a 2-process pool, a local Ray)."""
+executor (serial, a 2-process pool, a local Ray, a simulated two-node Ray cluster)."""
 
 from __future__ import annotations
 
@@ -142,15 +142,23 @@ def _strip_frames(study: Path, every: int) -> int:
     return removed
 
 
+FORCED = ("render", "maps", "queries", "attack")
+"""The stages the reruns redo (frames, maps, queries: every kind of worker task)."""
+
+
+def _stripped_copy(ci_tiny_study: Path, tmp_path: Path) -> Path:
+    study = tmp_path / "study"
+    shutil.copytree(ci_tiny_study, study)
+    assert _strip_frames(study, 3) > 10
+    return study
+
+
 def _rerun(ci_tiny_study: Path, tmp_path: Path, **kwargs) -> Path:
     from synthleak.config import load_config
     from synthleak.study import run_study
 
-    study = tmp_path / "study"
-    shutil.copytree(ci_tiny_study, study)
-    assert _strip_frames(study, 3) > 10
-    run_study(load_config("ci-tiny"), study, force=["render", "maps", "queries", "attack"], progress=False,
-              **kwargs)
+    study = _stripped_copy(ci_tiny_study, tmp_path)
+    run_study(load_config("ci-tiny"), study, force=list(FORCED), progress=False, **kwargs)
     return study
 
 
@@ -165,6 +173,37 @@ def test_ray_executor_gives_identical_files(ci_tiny_study: Path, tmp_path: Path)
     pytest.importorskip("ray")
     expected = result_digests(ci_tiny_study)
     assert result_digests(_rerun(ci_tiny_study, tmp_path, workers=2, executor="ray")) == expected
+
+
+def test_ray_two_node_cluster_gives_identical_files(ci_tiny_study: Path, tmp_path: Path) -> None:
+    """`synthleak study ci-tiny --executor ray --address` on a simulated two-node Ray cluster, one CPU per node: the
+    driver's node runs one task at a time, so a map of two or more tasks sends some to the other node (checked),
+    whose workers share nothing with the driver but the study folder. Same bytes as the serial run: no task relies on
+    state of the driver (globals, registrations, caches, its environment beyond what the executor passes on)."""
+    pytest.importorskip("ray")
+    from ray.cluster_utils import Cluster
+
+    from synthleak import cli
+
+    def node_of_task(_: int) -> str:  # defined here: Ray ships it by value, the test module need not import there
+        import ray
+
+        time.sleep(0.5)
+        return ray.get_runtime_context().get_node_id()
+
+    expected = result_digests(ci_tiny_study)
+    study = _stripped_copy(ci_tiny_study, tmp_path)
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
+    try:
+        cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        with make_executor("ray", 2, cluster.address) as executor:  # the cluster spreads a map over both nodes
+            assert executor.workers == 2 and len(set(executor.map(node_of_task, range(4)))) == 2
+        args = ["study", "ci-tiny", "--out", str(study), "--quiet", "--executor", "ray", "--address", cluster.address]
+        assert cli.main(args + [f"--force={stage}" for stage in FORCED]) == 0
+    finally:
+        cluster.shutdown()
+    assert result_digests(study) == expected
 
 
 def test_study_workers_default_to_the_usable_cores(monkeypatch, tmp_path) -> None:

@@ -140,12 +140,34 @@ def _cmd_study(args: argparse.Namespace) -> None:
     print(f"report written to {report}")
 
 
+TIERS_HELP = "{tiers}"
+"""Placeholder in a help text for the registered feature tiers (:func:`tiers_help`)."""
+
+
+def tiers_help() -> str:
+    """The registered feature tiers, for ``--tier``'s help (read from ``synthleak.localize.tiers``)."""
+    from synthleak.localize.tiers import TIERS
+
+    torch = [name for name, tier in TIERS.items() if tier.needs_torch]
+    extra = f" ({', '.join(torch)}: the [learned] extra, see README)" if torch else ""
+    return f"feature tier: {', '.join(TIERS)}{extra}"
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """Fills :data:`TIERS_HELP` in when help is printed, not when the parser is built (importing the tier
+    registry imports the localization package: about a second)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = super()._get_help_string(action)
+        return text.replace(TIERS_HELP, tiers_help()) if text and TIERS_HELP in text else text
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="synthleak", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
     def command(name: str, handler: Callable[[argparse.Namespace], None], help_text: str):
-        p = sub.add_parser(name, help=help_text, description=help_text)
+        p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=_HelpFormatter)
         p.set_defaults(handler=handler)
         p.add_argument("--quiet", action="store_true", help="no progress bars")
         return p
@@ -194,9 +216,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("map", _cmd_map, "build a localization map from a rendered scene sequence")
     p.add_argument("scene", help="a scene sequence folder, e.g. DATASET/scenes/room_000")
-    p.add_argument("--tier", default="sift",
-                   help="feature tier: sift, orb, akaze, kornia-sift, xfeat, xfeat-lighterglue, disk-lightglue, "
-                   "aliked-lightglue (the last four: the [learned] extra, see README)")
+    p.add_argument("--tier", default="sift", help=TIERS_HELP)
     p.add_argument("--out", required=True, help="map folder")
     p.add_argument("--config", help="study config whose [localize] section to use")
 

@@ -22,15 +22,15 @@ from synthleak.schema import Rule, anything, at_least, each, from_table, one_of,
 
 
 def _tiers() -> Iterable[str]:
-    from synthleak.localize.tiers import TIERS
+    from synthleak.localize.tiers import tier_names
 
-    return TIERS
+    return tier_names()
 
 
 def _aligners() -> Iterable[str]:
-    from synthleak.attack.align import ALIGNERS
+    from synthleak.attack.align import aligner_names
 
-    return sorted(ALIGNERS)
+    return aligner_names()
 
 
 def _presence_rules() -> Iterable[str]:
@@ -209,7 +209,7 @@ class LocalizeConfig:
         "bow_branching": at_least(2),
         "bow_depth": COUNT,
         "max_keypoints": COUNT,
-        "pnp_max_error_px": POSITIVE,
+        "pnp_max_error_px": at_least(0.0),
         "min_inliers": at_least(0),
         "pairs_per_image": COUNT,
     }
@@ -226,7 +226,8 @@ class LocalizeConfig:
     bow_depth: int = 2
     """... and levels: up to ``bow_branching ** bow_depth`` words (see :mod:`synthleak.localize.retrieval`)."""
     max_keypoints: int = 4096
-    pnp_max_error_px: float = 12.0
+    pnp_max_error_px: float = 0.0
+    """RANSAC PnP threshold in pixels; 0: the tier's own (12 px for every built-in tier, HLoc's default)."""
     min_inliers: int = 0
     """0: the tier's own default."""
     pairs_per_image: int = 10

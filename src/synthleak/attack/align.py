@@ -31,7 +31,8 @@ the signal the presence decision relies on. Dividing by the localized count inst
 localized images agree" into eps = 1 and make absent objects look present.
 
 Variants: :func:`align_sim3` (unknown map scale, hypotheses from pairs of images) and :func:`align_robust`
-(MSAC scoring + joint IRLS refinement), see their docstrings. ``ALIGNERS`` maps names to all three.
+(MSAC scoring + joint IRLS refinement), and :func:`align_pivot`, see their docstrings. Each is registered by
+name (:func:`register_aligner`, :func:`get_aligner`); ``[attack] aligners`` in a config is checked against them.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from synthleak.plugins import resolve
 from synthleak.seeding import make_rng
 
 
@@ -549,16 +551,34 @@ def align_pivot(
 
 
 Aligner = Callable[..., Alignment]
+"""``aligner(local_cam_from_object, server_cam_from_scene, delta_r_deg, delta_t_m, *, n_total) -> Alignment``."""
 
-ALIGNERS: dict[str, Aligner] = {
-    "alg1": align_alg1, "pivot": align_pivot, "robust": align_robust, "sim3": align_sim3,
-}
-"""Aligner registry: ``ALIGNERS[name](local, server, delta_r_deg, delta_t_m, n_total=...)``."""
+ALIGNERS: dict[str, Aligner | str] = {}
+"""Aligner registry: ``get_aligner(name)(local, server, delta_r_deg, delta_t_m, n_total=...)``."""
+
+
+def register_aligner(name: str, aligner: Aligner | str) -> None:
+    """Make ``name`` an aligner of ``[attack] aligners`` (a later registration of the name replaces the earlier
+    one). ``aligner``: the function, or ``"package.module:function"`` imported on first use (an aligner in its own
+    module, which may import this one's helpers)."""
+    ALIGNERS[name] = aligner
+
+
+def aligner_names() -> list[str]:
+    """Registered aligner names, sorted."""
+    return sorted(ALIGNERS)
 
 
 def get_aligner(name: str) -> Aligner:
     """The aligner called ``name``; ValueError listing the known ones otherwise."""
     try:
-        return ALIGNERS[name]
+        entry = ALIGNERS[name]
     except KeyError:
-        raise ValueError(f"aligner: unknown name {name!r} (known: {', '.join(sorted(ALIGNERS))})") from None
+        raise ValueError(f"aligner: unknown name {name!r} (known: {', '.join(aligner_names())})") from None
+    return resolve(entry)
+
+
+register_aligner("alg1", align_alg1)
+register_aligner("pivot", align_pivot)
+register_aligner("robust", align_robust)
+register_aligner("sim3", align_sim3)

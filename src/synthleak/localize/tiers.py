@@ -22,7 +22,12 @@ they keep at most ``min(LocalizeConfig.max_keypoints, Tier.max_keypoints)`` keyp
 learned matcher matches a query only against the ``top_k`` map images that bag-of-words retrieval ranks first,
 whatever ``LocalizeConfig.retrieval`` says (matching every map image would cost a network pass per image).
 
-All use RANSAC PnP with a 12 px threshold (HLoc's default).
+All use RANSAC PnP with a 12 px threshold (HLoc's default; ``LocalizeConfig.pnp_max_error_px`` overrides it).
+
+Adding a tier is one registration: :func:`register_tier` with its :class:`Tier` definition, an extractor
+factory and (unless mutual-NN + ratio matching suits it) a matcher factory, here or in the module that holds the
+extractor. The config's ``[localize] tiers``, ``synthleak map --tier`` and ``get_tier`` read this registry
+(``docs/ARCHITECTURE.md``).
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ import numpy as np
 
 from synthleak.localize.features import Extractor, Features, OpenCVExtractor, SiftExtractor
 from synthleak.localize.matching import match_features
+from synthleak.plugins import resolve
 
 Matcher = Callable[[Features, Features], np.ndarray]
 """``matcher(a, b) -> (M, 2)`` indices into ``a`` and ``b``."""
@@ -42,13 +48,19 @@ Matcher = Callable[[Features, Features], np.ndarray]
 
 @dataclass(frozen=True)
 class Tier:
-    """One robustness tier: names its extractor/matcher and their strictness."""
+    """One robustness tier: names its extractor/matcher and their strictness.
+
+    Its fields are the tier's *definition*: a learned tier's maps and query features record them (``map.json``,
+    the study's cache keys), so a change rebuilds them. The extractor and matcher are found by name in the
+    registry (:func:`register_tier`)."""
 
     name: str
     ratio: float
     mutual: bool
     pnp_max_error_px: float
+    """RANSAC PnP threshold (px), used where ``LocalizeConfig.pnp_max_error_px`` is 0."""
     min_inliers: int
+    """Fewest PnP inliers of a localized query, used where ``LocalizeConfig.min_inliers`` is 0."""
     needs_torch: bool = False
     max_keypoints: int = 0
     """Keypoint budget per image (0: none beyond ``LocalizeConfig.max_keypoints``)."""
@@ -72,54 +84,45 @@ class Tier:
         return deep.weights_record(self.weights, weights_dir)
 
     def make_extractor(self, max_keypoints: int, weights_dir: Path | None = None) -> Extractor:
-        max_keypoints = self.keypoint_budget(max_keypoints)
-        if self.name == "sift":
-            return SiftExtractor(max_keypoints)
-        if self.name in ("orb", "akaze"):
-            return OpenCVExtractor(self.name, max_keypoints)
-        from synthleak.localize import deep
-
-        if self.name == "kornia-sift":
-            return deep.KorniaSiftExtractor(max_keypoints)
-        if self.name in ("xfeat", "xfeat-lighterglue"):
-            return deep.XFeatExtractor(max_keypoints, weights_dir)
-        if self.name == "disk-lightglue":
-            return deep.DiskExtractor(max_keypoints, weights_dir)
-        if self.name == "aliked-lightglue":
-            return deep.AlikedExtractor(max_keypoints, weights_dir)
-        raise ValueError(f"tier {self.name!r}: no extractor")
+        """The registered extractor, keeping at most :meth:`keypoint_budget` keypoints per image."""
+        return _registered(self.name)[0](self, self.keypoint_budget(max_keypoints), weights_dir)
 
     def make_matcher(self, weights_dir: Path | None = None) -> Matcher:
-        if self.name == "kornia-sift":
-            from synthleak.localize import deep
-
-            return deep.KorniaDescriptorMatcher(self.ratio)
-        if self.learned_matcher:
-            from synthleak.localize import deep
-
-            return deep.LightGlueMatcher(self.name.split("-")[0], weights_dir, self.match_threshold)
-        ratio, mutual = self.ratio, self.mutual
-        return lambda a, b: match_features(a, b, ratio, mutual)
+        """The registered matcher."""
+        return _registered(self.name)[1](self, weights_dir)
 
 
-TIERS: dict[str, Tier] = {
-    t.name: t
-    for t in (
-        Tier("orb", ratio=0.75, mutual=True, pnp_max_error_px=12.0, min_inliers=20),
-        Tier("akaze", ratio=0.8, mutual=True, pnp_max_error_px=12.0, min_inliers=15),
-        Tier("sift", ratio=0.8, mutual=True, pnp_max_error_px=12.0, min_inliers=15),
-        Tier("kornia-sift", ratio=0.8, mutual=True, pnp_max_error_px=12.0, min_inliers=15, needs_torch=True),
-        Tier("xfeat", ratio=0.9, mutual=True, pnp_max_error_px=12.0, min_inliers=30, needs_torch=True,
-             max_keypoints=4096, weights=("xfeat",)),
-        Tier("xfeat-lighterglue", ratio=0.0, mutual=False, pnp_max_error_px=12.0, min_inliers=30, needs_torch=True,
-             max_keypoints=1024, learned_matcher=True, weights=("xfeat", "xfeat-lighterglue"), match_threshold=0.3),
-        Tier("disk-lightglue", ratio=0.0, mutual=False, pnp_max_error_px=12.0, min_inliers=30, needs_torch=True,
-             max_keypoints=1024, learned_matcher=True, weights=("disk", "disk-lightglue"), match_threshold=0.3),
-        Tier("aliked-lightglue", ratio=0.0, mutual=False, pnp_max_error_px=12.0, min_inliers=30, needs_torch=True,
-             max_keypoints=1024, learned_matcher=True, weights=("aliked-n16", "aliked-lightglue"),
-             match_threshold=0.3),
-    )
-}
+ExtractorFactory = Callable[[Tier, int, Path | None], Extractor]
+"""``factory(tier, max_keypoints, weights_dir) -> Extractor`` (``max_keypoints`` already capped by the tier)."""
+MatcherFactory = Callable[[Tier, Path | None], Matcher]
+"""``factory(tier, weights_dir) -> Matcher``."""
+
+TIERS: dict[str, Tier] = {}
+"""The registered tiers by name, in registration order (least to most robust)."""
+_FACTORIES: dict[str, tuple[ExtractorFactory | str, MatcherFactory | str]] = {}
+
+
+def nn_matcher(tier: Tier, weights_dir: Path | None = None) -> Matcher:
+    """Nearest-neighbour matching with the tier's ratio test and mutual check (the default matcher factory)."""
+    ratio, mutual = tier.ratio, tier.mutual
+    return lambda a, b: match_features(a, b, ratio, mutual)
+
+
+def register_tier(
+    tier: Tier, extractor: ExtractorFactory | str, matcher: MatcherFactory | str = nn_matcher
+) -> Tier:
+    """Make ``tier`` known by its name (a later registration of the name replaces the earlier one).
+
+    ``extractor`` / ``matcher``: factories, or ``"package.module:function"`` imported on first use
+    (:func:`synthleak.plugins.resolve`)."""
+    TIERS[tier.name] = tier
+    _FACTORIES[tier.name] = (extractor, matcher)
+    return tier
+
+
+def tier_names() -> list[str]:
+    """Registered tier names, least to most robust."""
+    return list(TIERS)
 
 
 def get_tier(name: str) -> Tier:
@@ -128,3 +131,74 @@ def get_tier(name: str) -> Tier:
         return TIERS[name]
     except KeyError:
         raise ValueError(f"unknown localization tier {name!r} (known: {', '.join(TIERS)})") from None
+
+
+def _registered(name: str) -> tuple[ExtractorFactory, MatcherFactory]:
+    try:
+        extractor, matcher = _FACTORIES[name]
+    except KeyError:
+        raise ValueError(f"tier {name!r}: no extractor registered (known: {', '.join(_FACTORIES)})") from None
+    return resolve(extractor), resolve(matcher)
+
+
+# ------------------------------------------------------------------------------------------ built-in tiers
+# The torch-based factories import synthleak.localize.deep (torch, kornia) only when the tier is used.
+
+
+def _opencv(tier: Tier, max_keypoints: int, weights_dir: Path | None) -> Extractor:
+    return OpenCVExtractor(tier.name, max_keypoints)
+
+
+def _sift(tier: Tier, max_keypoints: int, weights_dir: Path | None) -> Extractor:
+    return SiftExtractor(max_keypoints)
+
+
+def _kornia_sift(tier: Tier, max_keypoints: int, weights_dir: Path | None) -> Extractor:
+    from synthleak.localize import deep
+
+    return deep.KorniaSiftExtractor(max_keypoints)
+
+
+def _kornia_matcher(tier: Tier, weights_dir: Path | None) -> Matcher:
+    from synthleak.localize import deep
+
+    return deep.KorniaDescriptorMatcher(tier.ratio)
+
+
+def _learned(extractor: str) -> ExtractorFactory:
+    """The factory of :mod:`synthleak.localize.deep`'s ``extractor`` class (max_keypoints, weights_dir)."""
+
+    def make(tier: Tier, max_keypoints: int, weights_dir: Path | None) -> Extractor:
+        from synthleak.localize import deep
+
+        return getattr(deep, extractor)(max_keypoints, weights_dir)
+
+    return make
+
+
+def _lightglue(tier: Tier, weights_dir: Path | None) -> Matcher:
+    """LightGlue (or LighterGlue) for the tier's features: the name's first part (``disk``-lightglue)."""
+    from synthleak.localize import deep
+
+    return deep.LightGlueMatcher(tier.name.split("-")[0], weights_dir, tier.match_threshold)
+
+
+register_tier(Tier("orb", ratio=0.75, mutual=True, pnp_max_error_px=12.0, min_inliers=20), _opencv)
+register_tier(Tier("akaze", ratio=0.8, mutual=True, pnp_max_error_px=12.0, min_inliers=15), _opencv)
+register_tier(Tier("sift", ratio=0.8, mutual=True, pnp_max_error_px=12.0, min_inliers=15), _sift)
+register_tier(Tier("kornia-sift", ratio=0.8, mutual=True, pnp_max_error_px=12.0, min_inliers=15, needs_torch=True),
+              _kornia_sift, _kornia_matcher)
+register_tier(Tier("xfeat", ratio=0.9, mutual=True, pnp_max_error_px=12.0, min_inliers=30, needs_torch=True,
+                   max_keypoints=4096, weights=("xfeat",)), _learned("XFeatExtractor"))
+register_tier(Tier("xfeat-lighterglue", ratio=0.0, mutual=False, pnp_max_error_px=12.0, min_inliers=30,
+                   needs_torch=True, max_keypoints=1024, learned_matcher=True,
+                   weights=("xfeat", "xfeat-lighterglue"), match_threshold=0.3),
+              _learned("XFeatExtractor"), _lightglue)
+register_tier(Tier("disk-lightglue", ratio=0.0, mutual=False, pnp_max_error_px=12.0, min_inliers=30,
+                   needs_torch=True, max_keypoints=1024, learned_matcher=True, weights=("disk", "disk-lightglue"),
+                   match_threshold=0.3),
+              _learned("DiskExtractor"), _lightglue)
+register_tier(Tier("aliked-lightglue", ratio=0.0, mutual=False, pnp_max_error_px=12.0, min_inliers=30,
+                   needs_torch=True, max_keypoints=1024, learned_matcher=True,
+                   weights=("aliked-n16", "aliked-lightglue"), match_threshold=0.3),
+              _learned("AlikedExtractor"), _lightglue)

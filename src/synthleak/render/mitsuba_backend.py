@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from synthleak.config import RenderConfig
 from synthleak.core.types import Camera, Light, RenderMesh, RenderScene
 from synthleak.executors import worker_thread_cap
 from synthleak.render.base import Frame
@@ -447,3 +448,15 @@ class MitsubaRenderer:
         depth, instance = self._gt.render(camera, cam_from_world)
         rgb = self.render_rgb(camera, cam_from_world, seed, self._dark_passes(camera, cam_from_world, depth))
         return Frame(rgb=rgb, depth=depth, instance=instance)
+
+
+def create_mitsuba_renderer(config: RenderConfig) -> MitsubaRenderer:
+    """Registry factory: ``[render] renderer = "mitsuba"`` (``spp``, ``integrator``, ``max_depth``, ``filter``,
+    ``mitsuba_variant``)."""
+    return MitsubaRenderer(
+        spp=config.spp,
+        integrator=config.integrator,
+        max_depth=config.max_depth,
+        filter=config.filter,
+        variant=config.mitsuba_variant,
+    )

@@ -1,12 +1,14 @@
-"""Render backends by name: ``get_renderer(config)``; other backends register themselves here."""
+"""Render backends by name: ``get_renderer(config)``. Adding a backend is a module with a factory
+``create_<name>_renderer(config) -> Renderer`` and one :func:`register_renderer` line here (``[render]
+renderer`` in a config is checked against these names; ``docs/ARCHITECTURE.md``)."""
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 
 from synthleak.config import RenderConfig
 from synthleak.errors import SynthleakError
+from synthleak.plugins import resolve
 from synthleak.render.base import Renderer
 
 RendererFactory = Callable[[RenderConfig], Renderer]
@@ -18,49 +20,31 @@ FILTERS = ("box", "gaussian", "tent")
 MITSUBA_VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
 """``render.mitsuba_variant``: the mitsuba variants the backend supports (see ``mitsuba_backend``)."""
 
-_FACTORIES: dict[str, RendererFactory] = {}
-_INSTALL_HINTS: dict[str, str] = {
-    "mitsuba": "pip install 'mitsuba>=3.5' (variant scalar_rgb; llvm_ad_rgb also needs libLLVM >= 16)",
-    "pyrender": "apt-get install libegl1 libgl1-mesa-dri; pip install -e '.[pyrender]'; PYOPENGL_PLATFORM=egl",
-    "blender": "pip install -e '.[blender]' in a separate Python 3.11 venv (bpy pins numpy<2)",
-}
+_FACTORIES: dict[str, RendererFactory | str] = {}
+_INSTALL_HINTS: dict[str, str] = {}
 
 
 class RendererUnavailable(SynthleakError, RuntimeError):
     """The requested backend is unknown or cannot be imported."""
 
 
-def register_renderer(name: str, factory: RendererFactory, install_hint: str = "") -> None:
-    """Make ``name`` available to :func:`get_renderer` (later registrations replace earlier ones)."""
+def register_renderer(name: str, factory: RendererFactory | str, install_hint: str = "") -> None:
+    """Make ``name`` available to :func:`get_renderer` (later registrations replace earlier ones).
+
+    ``factory(config) -> Renderer``, or ``"package.module:function"``: the backend's module is imported only
+    when the backend is asked for (:func:`synthleak.plugins.resolve`). ``install_hint`` is what the error
+    says when it cannot be imported."""
     _FACTORIES[name] = factory
     if install_hint:
         _INSTALL_HINTS[name] = install_hint
 
 
-def _lazy(module: str, factory: str) -> RendererFactory:
-    """A factory that imports ``module`` only when the backend is asked for."""
-
-    def create(config: RenderConfig) -> Renderer:
-        return getattr(importlib.import_module(module), factory)(config)
-
-    return create
-
-
-def _mitsuba(config: RenderConfig) -> Renderer:
-    from synthleak.render.mitsuba_backend import MitsubaRenderer
-
-    return MitsubaRenderer(
-        spp=config.spp,
-        integrator=config.integrator,
-        max_depth=config.max_depth,
-        filter=config.filter,
-        variant=config.mitsuba_variant,
-    )
-
-
-register_renderer("mitsuba", _mitsuba)
-register_renderer("pyrender", _lazy("synthleak.render.pyrender_backend", "create_pyrender_renderer"))
-register_renderer("blender", _lazy("synthleak.render.blender_backend", "create_blender_renderer"))
+register_renderer("mitsuba", "synthleak.render.mitsuba_backend:create_mitsuba_renderer",
+                  "pip install 'mitsuba>=3.5' (variant scalar_rgb; llvm_ad_rgb also needs libLLVM >= 16)")
+register_renderer("pyrender", "synthleak.render.pyrender_backend:create_pyrender_renderer",
+                  "apt-get install libegl1 libgl1-mesa-dri; pip install -e '.[pyrender]'; PYOPENGL_PLATFORM=egl")
+register_renderer("blender", "synthleak.render.blender_backend:create_blender_renderer",
+                  "pip install -e '.[blender]' in a separate Python 3.11 venv (bpy pins numpy<2)")
 
 
 def available_renderers() -> list[str]:
@@ -73,13 +57,11 @@ def get_renderer(config: RenderConfig) -> Renderer:
     name = config.renderer
     factory = _FACTORIES.get(name)
     if factory is None:
-        hint = _INSTALL_HINTS.get(name)
-        extra = f" (not yet available in this version; it would need: {hint})" if hint else ""
         raise RendererUnavailable(
-            f"render.renderer: unknown backend {name!r}{extra}; available: {', '.join(available_renderers())}"
+            f"render.renderer: unknown backend {name!r}; available: {', '.join(available_renderers())}"
         )
     try:
-        return factory(config)
+        return resolve(factory)(config)
     except ImportError as exc:
         raise RendererUnavailable(
             f"render.renderer: backend {name!r} cannot run here ({exc}); install it with: "
