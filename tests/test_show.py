@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from synthleak.assets.mesh import ObjectMesh, TexturedPart
+from synthleak.core.dataset import DatasetError
 from synthleak.inspect import contact_sheet, id_colour, plan_view, projected_boxes
 from synthleak.inspect.contact_sheet import BAR_W, find_sequence
-from synthleak.render.dataset import DatasetError
 from synthleak.scene.spec import Light, PlacedObject, SceneSpec
 from test_bop_full import BACK, FRONT, H, W, write_box_sequence
 

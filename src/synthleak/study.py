@@ -172,7 +172,7 @@ def _query_plan(config: StudyConfig, scene_dataset: Path, attacker_dataset: Path
     """Every image sent to one room's server: its genuine held-out frames and every attacker frame.
 
     ``sequence`` is the sequence folder relative to its dataset; ``dataset`` says which one."""
-    from synthleak.render.dataset import load_sequence
+    from synthleak.core.dataset import load_sequence
 
     plan = []
     if genuine:
@@ -272,7 +272,7 @@ def feature_task(task: FeatureTask) -> int:
 def _query_plans(config: StudyConfig, paths: StudyPaths, maps: dict[tuple[str, str], Path],
                  attacker_dataset: Path, genuine: bool) -> dict[str, list[dict]]:
     """Each room's query plan, with ``_image`` (the image's path) and ``_camera`` (its intrinsics) added."""
-    from synthleak.render.dataset import load_sequence
+    from synthleak.core.dataset import load_sequence
 
     sequences: dict[Path, Any] = {}
     plans = {}
@@ -490,12 +490,12 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
     answers the server gave before its online defense refused some (the same logged queries)."""
     from synthleak.attack.presence_features import attack_features
     from synthleak.attack.run import run_attack
+    from synthleak.core.dataset import load_sequence
     from synthleak.evaluate.defense_online import without_defense
     from synthleak.evaluate.lookalikes import absent_kind, lookalike_ids
     from synthleak.evaluate.score import score_placement
     from synthleak.evaluate.tables import apply_presence_decisions
     from synthleak.localize.visibility import read_image_instances
-    from synthleak.render.dataset import load_sequence
 
     attacker_dataset = attacker_dataset or paths.dataset
     index = load_index(attacker_dataset)
@@ -638,8 +638,8 @@ def stage_world_sweep(config: StudyConfig, paths: StudyPaths, force: set[str], p
 # ----------------------------------------------------------------------------------------------- report
 def genuine_localization(paths: StudyPaths, logs: dict[tuple[str, str], Path]) -> list[dict[str, Any]]:
     """Accuracy of the held-out genuine queries per (tier, room): the server works as a server should."""
+    from synthleak.core.dataset import load_sequence
     from synthleak.geometry.poses import camera_centre, rotation_error_deg
-    from synthleak.render.dataset import load_sequence
 
     out = []
     for (tier, room), log in sorted(logs.items()):
@@ -662,8 +662,8 @@ def genuine_localization(paths: StudyPaths, logs: dict[tuple[str, str], Path]) -
 def world_summary(config: StudyConfig, paths: StudyPaths) -> dict[str, Any]:
     """The hard-world knobs, what each room holds, and the furniture coverage of each walk-through (from the
     GT instance masks)."""
+    from synthleak.core.dataset import load_sequence
     from synthleak.evaluate.coverage import sequence_coverage
-    from synthleak.render.dataset import load_sequence
 
     sc, rc = config.scenes, config.render
     rooms = []
@@ -717,8 +717,8 @@ def _defense_online_section(config: StudyConfig, paths: StudyPaths, rows: list[d
 def _room_plots(config: StudyConfig, paths: StudyPaths, rows: list[dict[str, Any]]) -> list[Path]:
     """Top-down map per room: GT boxes and the estimates the attack decided present (first tier, last
     aligner, middle thresholds)."""
+    from synthleak.core.dataset import load_sequence
     from synthleak.evaluate.plots import plot_room_topdown
-    from synthleak.render.dataset import load_sequence
 
     tier, aligner = config.localize.tiers[0], config.attack.aligners[-1]
     delta_r, delta_t = config.attack.thresholds[len(config.attack.thresholds) // 2]
@@ -787,9 +787,9 @@ def _side_by_side_sections(config: StudyConfig, paths: StudyPaths, rows: list[di
     """The aligners on the same queries; with an SfM local model, oracle vs SfM on the same queries."""
     from dataclasses import replace
 
+    from synthleak.core.dataset import load_sequence
     from synthleak.evaluate.compare import side_by_side_markdown
     from synthleak.evaluate.sfm_summary import sfm_objects_markdown
-    from synthleak.render.dataset import load_sequence
 
     parts = []
     if len(config.attack.aligners) > 1:

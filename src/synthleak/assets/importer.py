@@ -50,7 +50,7 @@ from synthleak.assets.import_store import (
 )
 from synthleak.assets.library import SUPPORTS, SYMMETRIES, ObjectModel
 from synthleak.atomic_io import folder_mode
-from synthleak.render.dataset import encode_png
+from synthleak.core.dataset import encode_png
 
 MAX_IMPORT_BYTES = 2 * 1024**3
 """Files larger than this are refused before reading (2 GiB)."""

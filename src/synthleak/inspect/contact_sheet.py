@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 
 from synthleak.atomic_io import atomic_write_bytes
+from synthleak.core.dataset import DatasetError, Sequence, encode_png, load_sequence
 from synthleak.geometry.poses import make_pose, transform_points
-from synthleak.render.dataset import DatasetError, Sequence, encode_png, load_sequence
 
 BAR_W = 44
 """Width in pixels of the depth scale bar appended to the depth panel."""
