@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from synthleak.config import StudyConfig
+from synthleak.core.dataset import INDEX_NAME, DatasetError, read_index
 from synthleak.paths import scenes_usd_dir
 from synthleak.progress import progress_display
 from synthleak.scene.plan import ATTACKER_TARGET_ID, AttackerPlan, RoomPlan, StudyPlan, plan_study
@@ -24,7 +25,6 @@ from synthleak.scene.usd_io import write_stage
 
 STAGE_FORMAT = 1
 """Bump when the composer's output changes for the same plan (invalidates skip keys)."""
-INDEX_NAME = "index.json"
 
 
 def _sha256(path: Path) -> str:
@@ -89,9 +89,11 @@ def _reusable(old: dict[str, Any] | None, key: str, path: Path) -> bool:
 
 
 def _load_old_index(out_dir: Path) -> dict[str, Any]:
+    """The previous ``index.json`` (:func:`synthleak.core.dataset.read_index`); none or a malformed one: ``{}``
+    (every stage is rebuilt)."""
     try:
-        return json.loads((out_dir / INDEX_NAME).read_text())
-    except (OSError, json.JSONDecodeError):
+        return read_index(out_dir)
+    except (OSError, DatasetError):
         return {}
 
 
