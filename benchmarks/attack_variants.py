@@ -21,10 +21,10 @@ from pathlib import Path
 
 from synthleak.attack.local_poses import sfm_model
 from synthleak.config import load_config
+from synthleak.core.dataset import load_sequence, read_index
 from synthleak.evaluate.compare import side_by_side_markdown
 from synthleak.evaluate.sfm_summary import sfm_objects_markdown
-from synthleak.render.dataset import load_sequence
-from synthleak.study import StudyPaths, attack_rows, load_index
+from synthleak.study import StudyPaths, attack_rows
 
 
 def main() -> None:
@@ -40,7 +40,7 @@ def main() -> None:
     config = load_config(args.config)
     aligners = args.aligners.split(",")
     logs = {(tier, room["name"]): paths.query_log(tier, room["name"])
-            for tier in config.localize.tiers for room in load_index(paths.dataset)["rooms"]}
+            for tier in config.localize.tiers for room in read_index(paths.dataset / "stages")["rooms"]}
     missing = [str(p) for p in logs.values() if not p.is_file()]
     if missing:
         raise SystemExit(f"{args.study}: no query logs for {missing[:3]} (run the study first)")
@@ -51,7 +51,7 @@ def main() -> None:
         return attack_rows(cfg, paths, logs)
 
     if args.local_model == "sfm":
-        objects = load_index(paths.dataset)["attacker_objects"]
+        objects = read_index(paths.dataset / "stages")["attacker_objects"]
         if args.rebuild_sfm:
             shutil.rmtree(paths.sfm, ignore_errors=True)
         start = time.perf_counter()

@@ -34,11 +34,11 @@ from pathlib import Path
 import numpy as np
 
 from synthleak.config import LocalizeConfig, config_from_dict
+from synthleak.core.dataset import load_sequence, read_index
 from synthleak.geometry.poses import camera_centre, rotation_error_deg
 from synthleak.localize.localizer import Localizer
 from synthleak.localize.tiers import get_tier
-from synthleak.render.dataset import load_sequence
-from synthleak.study import load_features, load_index, read_query_log
+from synthleak.study import load_features, read_query_log
 
 CORRECT_DEG, CORRECT_M = 10.0, 0.25
 
@@ -116,7 +116,7 @@ class InRoom:
 def run(study: Path, tier: str, in_room: bool, more_keypoints: int) -> list[dict]:
     manifest = json.loads((study / "dataset" / "manifest.json").read_text())
     config = config_from_dict(manifest["config"])
-    index = load_index(study / "dataset")
+    index = read_index(study / "dataset" / "stages")
     localize = LocalizeConfig(retrieval="exhaustive", max_keypoints=config.localize.max_keypoints)
     renderer = InRoom(study, config) if in_room else None
     extractor = get_tier(tier).make_extractor(config.localize.max_keypoints)

@@ -23,11 +23,11 @@ from rich.console import Console
 from rich.table import Table
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.dataset import load_sequence
 from synthleak.core.types import Camera
 from synthleak.geometry.poses import camera_centre
 from synthleak.localize import TIERS, Localizer, build_map
 from synthleak.localize import testscene as ts
-from synthleak.localize.sequence import read_sequence
 
 
 def synthetic_scene(root: Path, frames: int, width: int, height: int) -> Path:
@@ -39,7 +39,7 @@ def bench_tier(scene: Path, tier: str, work: Path, config: LocalizeConfig, weigh
     t0 = time.perf_counter()
     map_dir = build_map(scene, tier, work / tier, config, progress=False, weights_dir=weights)
     map_s = time.perf_counter() - t0
-    seq = read_sequence(scene)
+    seq = load_sequence(scene)
     loc = Localizer.load(map_dir, config, weights_dir=weights)
     loc.localize(seq.rgb(seq.query_frames[0]))  # warm-up
     matcher, pair_s = loc.matcher, []
@@ -96,7 +96,7 @@ def main() -> None:
                 scene = synthetic_scene(work / "scene", args.frames, *size)
                 console.print(f"rendered {args.frames} synthetic frames at {size[0]}x{size[1]} "
                               f"in {time.perf_counter() - t0:.1f} s")
-            seq = read_sequence(scene)
+            seq = load_sequence(scene)
             label = f"{seq.camera.width}x{seq.camera.height}"
             console.print(f"{label}: {len(seq.map_frames)} map images, {len(seq.query_frames)} queries")
             for tier in args.tiers:

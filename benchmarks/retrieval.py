@@ -36,6 +36,7 @@ import numpy as np
 from scipy.cluster.vq import kmeans2
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.dataset import load_sequence, read_index
 from synthleak.core.types import Camera
 from synthleak.geometry.poses import camera_centre, rotation_error_deg
 from synthleak.localize.features import Features
@@ -43,8 +44,7 @@ from synthleak.localize.localizer import Localizer
 from synthleak.localize.matching import squared_l2
 from synthleak.localize.retrieval import BowIndex, BowParams, VocabularyTree, as_float, sample_rows
 from synthleak.localize.visibility import read_image_instances, retrieved_sees
-from synthleak.render.dataset import load_sequence
-from synthleak.study import load_features, load_index, read_query_log
+from synthleak.study import load_features, read_query_log
 
 
 class VoteIndex:
@@ -469,7 +469,7 @@ def main() -> None:
     options = default_options(args.top_k)
     if args.only:
         options = [o for o in options if o.name == "exhaustive" or o.name in args.only]
-    index = load_index(study / "dataset")
+    index = read_index(study / "dataset" / "stages")
     gt = {(o["id"], room): int(i) for o in index["attacker_objects"] for room, i in o.get("present_in", {}).items()}
     tiers = args.tiers or sorted(p.name for p in (study / "maps").iterdir() if p.is_dir())
     everything = {}

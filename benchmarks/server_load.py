@@ -34,10 +34,10 @@ import numpy as np
 from PIL import Image
 
 from synthleak.config import load_config
+from synthleak.core.dataset import load_sequence
 from synthleak.core.types import Camera
 from synthleak.localize import build_map
 from synthleak.localize import testscene as ts
-from synthleak.localize.sequence import read_sequence
 
 
 def _free_port() -> int:
@@ -202,7 +202,7 @@ def main() -> None:
                                   ts.walkthrough_poses(args.frames), query_every=5)
         config = "ci-tiny"  # its [localize]: sift, 2048 keypoints, 8 pairs per image
         map_dir = build_map(scene, "sift", work / "map", load_config(config).localize, progress=False)
-        seq = read_sequence(scene)
+        seq = load_sequence(scene)
         bodies = [seq.image_path(f).read_bytes() for f in seq.query_frames]
         print(f"map: {len(seq.map_frames)} images at {args.width}x{args.height}, sift; "
               f"{len(bodies)} distinct queries, {args.requests} requests per row")

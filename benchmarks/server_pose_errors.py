@@ -26,9 +26,9 @@ from scipy.spatial.transform import Rotation
 from synthleak.attack.align import _centres, _per_image_hypotheses, chordal_mean, umeyama
 from synthleak.attack.local_model import oracle_local_poses
 from synthleak.config import load_config
+from synthleak.core.dataset import load_sequence, read_index
 from synthleak.geometry.poses import invert
-from synthleak.render.dataset import load_sequence
-from synthleak.study import StudyPaths, attack_rows, load_index, read_query_log
+from synthleak.study import StudyPaths, attack_rows, read_query_log
 
 
 def _rot_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -37,7 +37,7 @@ def _rot_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 def pose_errors(paths: StudyPaths, tier: str, rooms: list[str]) -> dict[str, list[float]]:
     """Server error components of every localized attacker query of a GT-present pair in ``tier``."""
-    index = load_index(paths.dataset)
+    index = read_index(paths.dataset / "stages")
     scenes = {r: load_sequence(paths.dataset / "scenes" / r).objects_by_id() for r in rooms}
     out: dict[str, list[float]] = {k: [] for k in (
         "rot", "swing", "turn", "centre_across", "centre_along", "obj_across", "obj_along", "gross",
@@ -96,7 +96,7 @@ def main() -> None:
     parser.add_argument("--pairs", action="store_true")
     args = parser.parse_args()
     paths, config = StudyPaths(args.study), load_config(args.config)
-    rooms = [r["name"] for r in load_index(paths.dataset)["rooms"]]
+    rooms = [r["name"] for r in read_index(paths.dataset / "stages")["rooms"]]
     print("| tier | n near | gross | med rot ° | med swing ° | med turn ° | centre across m | centre along m | "
           "object across m | object along m | pairs | pair rot from rotations ° | pair rot from centres ° |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")

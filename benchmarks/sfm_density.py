@@ -15,8 +15,7 @@ import math
 from pathlib import Path
 
 from synthleak.attack.local_model import cached_sfm_local_poses
-from synthleak.render.dataset import load_sequence
-from synthleak.study import load_index
+from synthleak.core.dataset import load_sequence, read_index
 
 
 def main() -> None:
@@ -30,7 +29,7 @@ def main() -> None:
     steps = [int(s) for s in args.steps.split(",")]
     print("| object | frames | registered | misregistered | scale error % | object points | seconds | problem |")
     print("|---|---|---|---|---|---|---|---|")
-    for obj in load_index(dataset)["attacker_objects"]:
+    for obj in read_index(dataset / "stages")["attacker_objects"]:
         seq = load_sequence(dataset / "attackers" / obj["id"])
         extents = seq.objects_by_id()[seq.target_instance_id].extents
         for step in steps:

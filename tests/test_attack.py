@@ -299,7 +299,7 @@ def test_attack_in_a_local_frame_scores_through_object_from_local():
 
 def test_oracle_local_poses_needs_an_object_frame_sequence():
     poses = {"000000.png": ring_poses(1)[0]}
-    seq = SimpleNamespace(root=Path("a01"), frame="object", frames=list(poses), cam_from_world=poses)
+    seq = SimpleNamespace(root=Path("a01"), frame="object", frames=list(poses), cam_from_object=poses)
     got = oracle_local_poses(seq)
     np.testing.assert_array_equal(got["000000.png"], poses["000000.png"])
     with pytest.raises(ValueError, match="frame"):

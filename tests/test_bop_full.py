@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 import trimesh
 
+from synthleak.core.dataset import frame_name
 from synthleak.core.types import Camera, InstanceInfo, Light, RenderMesh, RenderScene
 from synthleak.geometry.poses import look_at, make_pose, transform_points
 from synthleak.render.base import Frame
 from synthleak.render.bop_full import depth_png, diameter, write_bop_extras, write_bop_models
-from synthleak.render.dataset import frame_name, write_frame, write_sequence_metadata
+from synthleak.render.dataset import write_frame, write_sequence_metadata
 from synthleak.render.raycast import RaycastGT
 
 W, H = 96, 72
@@ -63,7 +64,7 @@ def write_box_sequence(seq_dir: Path, scene: RenderScene | None = None, n: int =
         seq_dir,
         camera=camera,
         frames=frames,
-        cam_from_world=poses,
+        poses=poses,
         instances=[scene.instances[i] for i in sorted(scene.instances)],
         split={"map": frames[:-1], "query": frames[-1:]},
     )
@@ -187,8 +188,8 @@ def test_real_pipeline_sequence_gets_bop_extras(tmp_path) -> None:
 def test_depth_pruned_silhouettes_equal_casting_every_pixel(bop_seq) -> None:
     """The rays gt_info_for skips (visible surface beyond the object's farthest vertex) would all miss:
     the pruned full masks equal a ray cast of every pixel of the image against the object alone."""
+    from synthleak.core.dataset import load_sequence
     from synthleak.render.bop_full import ObjectSilhouette, gt_info_for, instance_model_meshes
-    from synthleak.render.dataset import load_sequence
 
     seq_dir, scene = bop_seq
     seq = load_sequence(seq_dir)
@@ -274,8 +275,8 @@ def test_mesh_behind_the_camera_is_clipped_not_cast_everywhere(bop_seq) -> None:
     """The floor reaches behind the camera: its cast box comes from the mesh clipped at the camera plane
     (smaller than the 3x enlarged image), and the enlarged silhouette's counts and box equal a ray cast of
     every pixel of the enlarged image."""
+    from synthleak.core.dataset import load_sequence
     from synthleak.render.bop_full import ObjectSilhouette, _region, gt_info_for, instance_model_meshes
-    from synthleak.render.dataset import load_sequence
 
     seq_dir, scene = bop_seq
     seq = load_sequence(seq_dir)

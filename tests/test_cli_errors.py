@@ -32,10 +32,10 @@ def assert_one_line_error(result: subprocess.CompletedProcess, command: str, *ne
 
 def test_error_classes_share_one_base() -> None:
     from synthleak.config import ConfigError
+    from synthleak.core.dataset import DatasetError
     from synthleak.core.usd_read import StageError as UsdStageError
     from synthleak.errors import StageError, SynthleakError
     from synthleak.executors import ExecutorError
-    from synthleak.render.dataset import DatasetError
     from synthleak.render.pipeline import StageError as PipelineStageError
     from synthleak.render.registry import RendererUnavailable
     from synthleak.scene.placement import PlacementError

@@ -12,7 +12,7 @@ from synthleak.evaluate import plots
 from synthleak.evaluate.defense_sweep import defense_tradeoff, passes_defense, qualifying_instances
 from synthleak.evaluate.metrics import (
     iou_3d,
-    rotation_error_deg,
+    rotation_block,
     success_at,
     success_rates,
     translation_error_m,
@@ -30,7 +30,7 @@ from synthleak.evaluate.tables import (
     table2_markdown,
     write_results,
 )
-from synthleak.geometry.poses import make_pose
+from synthleak.geometry.poses import make_pose, rotation_error_deg
 
 
 def rz(deg: float) -> np.ndarray:
@@ -56,6 +56,18 @@ def test_rotation_error_symmetries():
     assert as_poses == pytest.approx(10.0)
     with pytest.raises(ValueError, match="symmetry"):
         rotation_error_deg(R_GT, R_GT, "3")
+
+
+def test_rotation_block_divides_out_a_similarity_scale():
+    sim = make_pose(2.5 * (R_GT @ rz(30)), [1, 2, 3])
+    np.testing.assert_allclose(rotation_block(sim, "sim"), R_GT @ rz(30), atol=1e-12)
+    assert rotation_error_deg(rotation_block(sim, "sim"), R_GT) == pytest.approx(30.0)
+    with pytest.raises(ValueError, match="sim: non-finite"):
+        rotation_block(np.full((4, 4), np.nan), "sim")
+    with pytest.raises(ValueError, match="m: rotation block has determinant"):
+        rotation_block(-np.eye(3), "m")
+    with pytest.raises(ValueError, match="r_a: expected a 3x3 rotation or 4x4 pose"):
+        rotation_error_deg(np.eye(2), R_GT)
 
 
 def test_translation_error_uses_box_centre():

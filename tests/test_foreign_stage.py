@@ -210,7 +210,7 @@ def test_foreign_stage_exact_gt_by_raycast(room: Path) -> None:
 
 def test_foreign_stage_through_the_render_pipeline(room: Path, tmp_path: Path) -> None:
     from synthleak.config import RenderConfig, StudyConfig
-    from synthleak.render.dataset import load_sequence
+    from synthleak.core.dataset import load_sequence
     from synthleak.render.pipeline import render_sequence
 
     config = StudyConfig(
@@ -263,7 +263,7 @@ def test_folder_of_foreign_stages_renders_without_an_index(tmp_path: Path) -> No
     import subprocess
     import sys
 
-    from synthleak.render.dataset import load_sequence
+    from synthleak.core.dataset import load_sequence
     from tiny_stages import write_config
 
     folder = tmp_path / "stages"

@@ -256,11 +256,12 @@ def hard_study(tmp_path_factory):
 
 @pytest.mark.slow
 def test_an_absent_object_localizes_on_an_instance_sharing_its_sku(hard_study):
+    from synthleak.core.dataset import read_index
     from synthleak.evaluate.lookalikes import lookalike_ids, top_instance
-    from synthleak.study import load_index, read_query_log
+    from synthleak.study import read_query_log
 
     _, out = hard_study
-    index = load_index(out / "dataset")
+    index = read_index(out / "dataset" / "stages")
     rooms = {r["name"]: r for r in index["rooms"]}
     hits = []
     for log in sorted((out / "queries").glob("*/*/queries.jsonl")):
@@ -284,14 +285,13 @@ def test_an_absent_object_localizes_on_an_instance_sharing_its_sku(hard_study):
 def test_hard_world_report_coverage_masks_and_bop(hard_study):
     """The walk-through sees furniture (coverage from the GT masks), props and distractors are in the masks,
     the BOP GT and the plan view, close-ups are held-out queries, and the report has the new sections."""
+    from synthleak.core.dataset import load_sequence, read_index
     from synthleak.evaluate.coverage import sequence_coverage
     from synthleak.inspect.plan_view import footprints
-    from synthleak.render.dataset import load_sequence
     from synthleak.render.pipeline import load_stage
-    from synthleak.study import load_index
 
     _, out = hard_study
-    index = load_index(out / "dataset")
+    index = read_index(out / "dataset" / "stages")
     for room in index["rooms"]:
         seq = load_sequence(out / "dataset" / "scenes" / room["name"])
         coverage = sequence_coverage(seq)

@@ -256,9 +256,9 @@ def test_a_learned_matcher_only_sees_the_top_k_retrieved_images(tmp_path):
     calls = []
     matcher = loc.matcher
     loc.matcher = lambda a, b: calls.append(len(b)) or matcher(a, b)
-    from synthleak.localize.sequence import read_sequence
+    from synthleak.core.dataset import load_sequence
 
-    seq = read_sequence(scene)
+    seq = load_sequence(scene)
     result = loc.localize(seq.rgb(seq.query_frames[0]))
     assert len(calls) == 2 < meta["num_images"]
     assert result.success and np.linalg.norm(result.cam_from_world[:3, 3] - seq.cam_from_world[

@@ -76,7 +76,7 @@ def test_an_emissive_mesh_alone_lights_the_room(tmp_path: Path, backend: str) ->
 
 @pytest.mark.parametrize("backend", ["mitsuba", "pyrender"])
 def test_a_stage_without_light_renders_with_the_default_light(tmp_path: Path, backend: str) -> None:
-    from synthleak.render.dataset import load_sequence
+    from synthleak.core.dataset import load_sequence
     from synthleak.render.pipeline import render_sequence
 
     _renderer(backend)

@@ -22,14 +22,14 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from synthleak.config import LocalizeConfig, config_from_dict
+from synthleak.core.dataset import encode_png, load_sequence
 from synthleak.core.types import Camera
 from synthleak.geometry.poses import camera_centre, look_at, rotation_error_deg
 from synthleak.localize import DefensePolicy, Localizer, build_map, decide, get_tier
 from synthleak.localize import testscene as ts
-from synthleak.localize.client import HttpLocalizer, LocalizationServiceError, encode_png
+from synthleak.localize.client import HttpLocalizer, LocalizationServiceError
 from synthleak.localize.defense import contributing_instances
 from synthleak.localize.localizer import InvalidImageError
-from synthleak.localize.sequence import read_sequence
 from synthleak.localize.server import create_app, response_from_result
 
 CONFIG = LocalizeConfig(max_keypoints=2048, pairs_per_image=8)
@@ -110,7 +110,7 @@ def small_box_scene(box_quads, tmp_path_factory) -> Path:
 
 
 def test_genuine_queries_localize_accurately(study_scene, study_localizer):
-    seq = read_sequence(study_scene)
+    seq = load_sequence(study_scene)
     assert len(seq.query_frames) >= 5
     assert not set(seq.query_frames) & set(seq.map_frames)
     errors, localized = [], 0
@@ -127,7 +127,7 @@ def test_genuine_queries_localize_accurately(study_scene, study_localizer):
 
 
 def test_map_points_lie_on_surfaces_and_carry_instances(study_scene, study_map):
-    seq = read_sequence(study_scene)
+    seq = load_sequence(study_scene)
     meta = json.loads((study_map / "map.json").read_text())
     assert meta["tier"] == "sift" and meta["num_images"] == len(seq.map_frames)
     rec = pycolmap.Reconstruction(str(study_map / "sfm"))
@@ -165,7 +165,7 @@ def test_build_map_reuses_a_matching_map(study_scene, study_map):
 
 
 def test_localization_is_deterministic_and_bow_retrieval_works(study_scene, study_map, study_localizer):
-    seq = read_sequence(study_scene)
+    seq = load_sequence(study_scene)
     frame = seq.query_frames[1]
     a, b = study_localizer.localize(seq.rgb(frame)), study_localizer.localize(seq.rgb(frame))
     assert a.success and np.array_equal(a.cam_from_world, b.cam_from_world)
@@ -193,10 +193,10 @@ def test_bad_query_images_raise(study_localizer):
 
 
 def test_bad_sequence_and_map_folders_are_named(tmp_path, box_scene):
-    from synthleak.localize.sequence import SequenceError
+    from synthleak.core.dataset import DatasetError
     from synthleak.localize.store import MapError
 
-    with pytest.raises(SequenceError, match="no such sequence folder"):
+    with pytest.raises(DatasetError, match="no such sequence folder"):
         build_map(tmp_path / "nowhere", "sift", tmp_path / "map", progress=False)
     with pytest.raises(MapError, match="map.json: missing"):
         Localizer.load(tmp_path / "empty")
@@ -255,7 +255,7 @@ def test_defense_rejects_single_object_view_and_accepts_wide_view(box_quads, box
     assert np.array_equal(result.withheld_cam_from_world, undefended.cam_from_world)
     assert response_from_result(result) == {"success": False}
 
-    seq = read_sequence(box_scene)
+    seq = load_sequence(box_scene)
     wide = defended.localize(seq.rgb(seq.query_frames[0]))
     assert wide.success and wide.defense.accepted and len(wide.defense.contributing) >= 3
 
@@ -292,7 +292,7 @@ def client(study_localizer) -> TestClient:
 
 
 def test_http_response_carries_only_the_documented_fields(client, study_scene):
-    seq = read_sequence(study_scene)
+    seq = load_sequence(study_scene)
     response = client.post("/localize", content=seq.image_path(seq.query_frames[0]).read_bytes(),
                            headers={"Content-Type": "image/png"})
     assert response.status_code == 200
@@ -323,7 +323,7 @@ def test_http_response_carries_only_the_documented_fields(client, study_scene):
 def test_http_bad_input_gets_4xx_and_the_server_keeps_serving(
     client, study_scene, body, params, status, message
 ):
-    seq = read_sequence(study_scene)
+    seq = load_sequence(study_scene)
     if body == "1x1":
         body = png_bytes(np.zeros((1, 1, 3), np.uint8))
     elif body == "64x48":
@@ -347,7 +347,7 @@ def test_http_streamed_upload_over_the_limit_is_rejected(client):
 
 
 def test_http_intrinsics_are_used(client, study_scene, study_localizer):
-    seq = read_sequence(study_scene)
+    seq = load_sequence(study_scene)
     cam = study_localizer.camera
     body = seq.image_path(seq.query_frames[2]).read_bytes()
     response = client.post("/localize", content=body, params={"fx": cam.fx, "fy": cam.fy, "cx": cam.cx,
@@ -373,7 +373,7 @@ def test_http_client_matches_in_process_localizer_over_uvicorn(study_scene, stud
         deadline = time.monotonic() + 20
         while not server.started and time.monotonic() < deadline:
             time.sleep(0.05)
-        seq = read_sequence(study_scene)
+        seq = load_sequence(study_scene)
         with HttpLocalizer(f"http://127.0.0.1:{port}") as remote:
             assert remote.health()
             for frame in seq.query_frames[:3]:
@@ -401,7 +401,7 @@ def run_tier(scene: Path, tier: str, out: Path, weights_dir: Path | None = None,
     map_dir = build_map(scene, tier, out, cfg, progress=False, weights_dir=weights_dir)
     assert json.loads((map_dir / "map.json").read_text())["tier"] == tier
     loc = Localizer.load(map_dir, cfg, weights_dir=weights_dir)
-    seq = read_sequence(scene)
+    seq = load_sequence(scene)
     return [(loc.localize(seq.rgb(f)), seq.cam_from_world[f]) for f in seq.query_frames]
 
 

@@ -12,13 +12,13 @@ import pytest
 from synthleak import cli
 from synthleak.attack import align
 from synthleak.config import ConfigError, LocalizeConfig, RenderConfig, config_from_dict
+from synthleak.core.dataset import load_sequence
+from synthleak.core.types import Camera
 from synthleak.localize import Localizer, build_map, tiers
 from synthleak.localize import testscene as ts
 from synthleak.localize.features import OpenCVExtractor
 from synthleak.localize.matching import match_features
-from synthleak.localize.sequence import read_sequence
 from synthleak.render import registry
-from synthleak.render.base import Camera
 
 ARCHITECTURE = Path(__file__).resolve().parents[1] / "docs" / "ARCHITECTURE.md"
 
@@ -87,7 +87,7 @@ def test_a_registered_tier_maps_localizes_and_validates(scratch_registries, tmp_
     loc = Localizer.load(map_dir, config)
     assert loc.tier is tier and (loc.max_error_px, loc.min_inliers) == (8.0, 25)
     assert max(len(f.keypoints) for f in loc.data.features) <= 1500  # the tier's keypoint budget
-    seq = read_sequence(scene)
+    seq = load_sequence(scene)
     results = [loc.localize(seq.rgb(frame)) for frame in seq.query_frames]
     assert any(r.success for r in results)
     for frame, result in zip(seq.query_frames, results, strict=True):

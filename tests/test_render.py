@@ -11,9 +11,9 @@ import pytest
 import trimesh
 
 from synthleak.config import ConfigError, RenderConfig, StudyConfig, config_from_dict
+from synthleak.core.dataset import DatasetError, load_sequence
 from synthleak.core.types import Camera, InstanceInfo, Light, RenderMesh, RenderScene
 from synthleak.geometry.poses import camera_centre, invert, look_at, make_pose, transform_points
-from synthleak.render.dataset import DatasetError, load_sequence
 from synthleak.render.mitsuba_backend import MitsubaRenderer
 from synthleak.render.pipeline import (
     StageError,
@@ -239,7 +239,7 @@ def test_colmap_export_reads_back_exactly(rendered_room, room):
     assert seq.rgb(0).shape == (90, 120, 3) and seq.instance("000001").dtype == np.uint16
 
 
-def test_attacker_sequence_is_stored_in_the_object_frame(tmp_path):
+def test_attacker_sequence_is_stored_in_the_object_frame(tmp_path, rendered_room):
     scene = attacker_scene()
     out = render_scene_sequence(scene, tmp_path / "a01", tiny_config(), "attacker", progress=False)
     seq = load_sequence(out)
@@ -247,13 +247,30 @@ def test_attacker_sequence_is_stored_in_the_object_frame(tmp_path):
     assert np.allclose(seq.objects_by_id()[1].world_from_object, np.eye(4))
     world_poses = plan_poses(scene, tiny_config(), "attacker", "a01")
     world_from_object = scene.instances[1].world_from_object
+    box = canonical_box((0.5, 0.4, 0.8))  # the target in its canonical (object) frame
+    distances = []
     for i, name in enumerate(seq.frames):
-        assert np.allclose(seq.cam_from_world[name], world_poses[i] @ world_from_object, atol=1e-12)
+        cam_from_object = seq.cam_from_object[name]
+        assert np.allclose(cam_from_object, world_poses[i] @ world_from_object, atol=1e-12)
         # the object's canonical centre projects near the image centre and is the visible instance there
-        centre = transform_points(seq.cam_from_world[name], [[0, 0, 0.4]])[0]
+        centre = transform_points(cam_from_object, [[0, 0, 0.4]])[0]
         u, v = (seq.camera.K @ centre)[:2] / centre[2]
         assert abs(u - 60) < 25 and abs(v - 45) < 20
         assert (seq.instance(name) == 1).mean() > 0.15
+        # the rendered depth of the target's pixels, taken back through object_from_cam, lies on the canonical box
+        depth, on_target = seq.depth(name), seq.instance(name) == 1
+        v_px, u_px = np.nonzero(on_target & np.isfinite(depth))
+        z = depth[v_px, u_px].astype(np.float64)
+        k = seq.camera.K
+        cam_pts = np.stack([(u_px + 0.5 - k[0, 2]) / k[0, 0] * z, (v_px + 0.5 - k[1, 2]) / k[1, 1] * z, z], axis=1)
+        distances.append(trimesh.proximity.closest_point(box, transform_points(invert(cam_from_object), cam_pts))[1])
+    distances = np.concatenate(distances)
+    assert len(distances) > 1000 and np.mean(distances < 0.002) >= 0.99, np.percentile(distances, [50, 99])
+    # one name per frame: an attacker sequence has no cam_from_world, a scene sequence no cam_from_object
+    with pytest.raises(DatasetError, match=r"objects\.json.*'object'.*cam_from_object"):
+        seq.cam_from_world  # noqa: B018
+    with pytest.raises(DatasetError, match=r"objects\.json.*'world'.*cam_from_world"):
+        load_sequence(rendered_room).cam_from_object  # noqa: B018
 
 
 # --------------------------------------------------------------------------------------------- mitsuba
@@ -512,7 +529,7 @@ def test_real_stages_ground_truth_and_layout(real_dataset):
         assert np.allclose(target.world_from_object, np.eye(4))
         # the canonical-frame centre of the target is in view, in front, and the target is what is seen
         for name in att.frames:
-            centre = transform_points(att.cam_from_world[name], [[0, 0, target.extents[2] / 2]])[0]
+            centre = transform_points(att.cam_from_object[name], [[0, 0, target.extents[2] / 2]])[0]
             uv = (att.camera.K @ centre)[:2] / centre[2]
             assert centre[2] > 0 and np.all(np.abs(uv - [60, 45]) < [40, 30])
             assert (att.instance(name) == att.target_instance_id).mean() > 0.05

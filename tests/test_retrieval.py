@@ -12,13 +12,13 @@ import pytest
 from PIL import Image
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.dataset import load_sequence
 from synthleak.core.types import Camera
 from synthleak.geometry.poses import camera_centre, look_at
 from synthleak.localize import Localizer, build_map
 from synthleak.localize import testscene as ts
 from synthleak.localize.features import Features
 from synthleak.localize.retrieval import BowIndex, BowParams
-from synthleak.localize.sequence import read_sequence
 from synthleak.localize.visibility import read_image_instances, retrieved_sees, visible_instances
 
 CAMERA = Camera.from_hfov(320, 240, 65.0)
@@ -52,7 +52,7 @@ def nearest_map_images(names: list[str], seq, frame: str, n: int = 2) -> set[str
 
 def test_top_k_holds_the_map_image_the_query_was_taken_next_to(scene, box_map):
     tier, map_dir = box_map
-    seq = read_sequence(scene)
+    seq = load_sequence(scene)
     loc = Localizer.load(map_dir, CONFIG)
     assert loc.data.features[0].binary == (tier == "orb")
     for frame in seq.query_frames:
@@ -103,7 +103,7 @@ def test_map_records_retrieval_parameters_and_visible_instances(scene, box_map):
     assert json.loads((map_dir / "map.json").read_text())["retrieval"]["top_k"] == 20
     build_map(scene, tier, map_dir, CONFIG, progress=False)
     # image_instances.json: the instances covering >= 0.5 % of each map image's GT mask.
-    seq = read_sequence(scene)
+    seq = load_sequence(scene)
     doc = json.loads((map_dir / "image_instances.json").read_text())
     assert doc["min_fraction"] == 0.005 and doc["min_pixels"] == int(np.ceil(0.005 * 320 * 240))
     assert list(doc["images"]) == seq.map_frames
@@ -158,7 +158,7 @@ def test_ci_tiny_retrieval_keeps_the_exhaustive_localizations(ci_tiny_study):
     """The study's own retrieval (ci-tiny's default) against exhaustive matching on the same maps and the same
     cached query features: at least 90 % of the attacker queries exhaustive matching localizes still localize."""
     from synthleak.config import load_config
-    from synthleak.render.dataset import load_sequence
+    from synthleak.core.dataset import load_sequence
     from synthleak.study import load_features, read_query_log
 
     config = load_config("ci-tiny")
@@ -188,9 +188,10 @@ def test_ci_tiny_retrieval_keeps_the_exhaustive_localizations(ci_tiny_study):
 def test_ci_tiny_funnel_counts_queries_whose_retrieval_sees_the_object(ci_tiny_study):
     """The study's results and report carry the funnel step, recomputed here from the query log and the GT masks
     of the map images (``image_instances.json``)."""
-    from synthleak.study import load_index, read_query_log
+    from synthleak.core.dataset import read_index
+    from synthleak.study import read_query_log
 
-    index = load_index(ci_tiny_study / "dataset")
+    index = read_index(ci_tiny_study / "dataset" / "stages")
     rows = [r for r in json.loads((ci_tiny_study / "results" / "results.json").read_text())
             if r["present_gt"] and r.get("magnitude") is None]
     assert rows

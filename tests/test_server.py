@@ -25,12 +25,12 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.dataset import load_sequence
 from synthleak.core.types import Camera
 from synthleak.localize import Localizer, build_map
 from synthleak.localize import testscene as ts
 from synthleak.localize.images import MAX_QUERY_PIXELS, ImageTooLargeError, decode_image, read_size
 from synthleak.localize.pool import LocalizerPool
-from synthleak.localize.sequence import read_sequence
 from synthleak.localize.server import create_app
 
 CONFIG = LocalizeConfig(max_keypoints=1024, pairs_per_image=4)
@@ -66,7 +66,7 @@ def client(localizer) -> TestClient:
 
 @pytest.fixture(scope="module")
 def queries(scene) -> list[bytes]:
-    seq = read_sequence(scene)
+    seq = load_sequence(scene)
     return [seq.image_path(f).read_bytes() for f in seq.query_frames]
 
 
@@ -86,7 +86,7 @@ def test_blank_image_does_not_abort_a_localize_batch(map_dir, scene, tmp_path, c
 
     blank = tmp_path / "blank.png"
     blank.write_bytes(png_bytes(np.zeros((240, 320, 3), np.uint8)))
-    seq = read_sequence(scene)
+    seq = load_sequence(scene)
     query = str(seq.image_path(seq.query_frames[0]))
     assert main(["localize", str(map_dir), str(blank), query]) == 0
     lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
@@ -99,7 +99,7 @@ def test_refused_image_is_named_and_does_not_abort_a_localize_batch(map_dir, sce
 
     huge = tmp_path / "huge.png"
     huge.write_bytes(png_bytes(np.zeros((6000, 6000), np.uint8)))
-    seq = read_sequence(scene)
+    seq = load_sequence(scene)
     query = str(seq.image_path(seq.query_frames[0]))
     assert main(["localize", str(map_dir), str(huge), query]) == 2
     captured = capsys.readouterr()
@@ -110,7 +110,7 @@ def test_refused_image_is_named_and_does_not_abort_a_localize_batch(map_dir, sce
 
 
 def test_16_bit_images_are_scaled_not_clipped(localizer, scene):
-    seq = read_sequence(scene)
+    seq = load_sequence(scene)
     frame = seq.query_frames[1]
     rgb = seq.rgb(frame)
     expected = localizer.localize(rgb)
@@ -149,7 +149,7 @@ def test_decompression_bomb_is_refused_from_the_header(client):
 
 def test_large_photo_is_downscaled_with_scaled_intrinsics(localizer, scene):
     """A 3x upscaled query with 3x intrinsics: extracted at the map's size, and the same camera pose."""
-    seq = read_sequence(scene)
+    seq = load_sequence(scene)
     frame = seq.query_frames[2]
     rgb = seq.rgb(frame)
     big = cv2.resize(rgb, (960, 720), interpolation=cv2.INTER_CUBIC)

@@ -15,9 +15,8 @@ import pytest
 from synthleak.attack.local_model import cached_sfm_local_poses, oracle_local_poses, scene_from_object_estimate
 from synthleak.attack.run import run_attack
 from synthleak.config import load_config
-from synthleak.evaluate.metrics import rotation_error_deg
-from synthleak.render.dataset import load_sequence
-from synthleak.study import load_index
+from synthleak.core.dataset import load_sequence, read_index
+from synthleak.geometry.poses import rotation_error_deg
 
 DENSE_FRAMES = 48
 """Orbit frames SfM needs on ci-tiny's trajectory (7.5° steps): at 32, 6-14 of the views of each object were
@@ -32,7 +31,7 @@ def _extent_volume(study: Path, obj_id: str) -> float:
 def _largest_present(study: Path) -> tuple[dict, str]:
     """The present attacker object with the largest box and its room (SfM needs surface: a bicycle's tubes
     give too few points to measure its size)."""
-    present = [o for o in load_index(study / "dataset")["attacker_objects"] if o.get("present_in")]
+    present = [o for o in read_index(study / "dataset" / "stages")["attacker_objects"] if o.get("present_in")]
     obj = max(present, key=lambda o: (_extent_volume(study, o["id"]), o["id"]))
     return obj, sorted(obj["present_in"])[0]
 
@@ -129,4 +128,4 @@ def test_study_with_sfm_leaves_out_and_counts_unregistered_views(ci_tiny_study, 
     assert "| oracle |" in report and "| sfm |" in report
     assert "## Local model: SfM of the attacker's orbit" in report
     models = sorted((copy / "sfm").glob("*/model.json"))
-    assert len(models) == len(load_index(copy / "dataset")["attacker_objects"])
+    assert len(models) == len(read_index(copy / "dataset" / "stages")["attacker_objects"])

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from synthleak.assets.mesh import ObjectMesh, TexturedPart
+from synthleak.core.dataset import DatasetError
 from synthleak.core.types import Light
 from synthleak.inspect import contact_sheet, id_colour, plan_view, projected_boxes
 from synthleak.inspect.contact_sheet import BAR_W, find_sequence
-from synthleak.render.dataset import DatasetError
 from synthleak.scene.spec import PlacedObject, SceneSpec
 from test_bop_full import BACK, FRONT, H, W, write_box_sequence
 

@@ -16,9 +16,8 @@ from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any, TypeVar
 
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
 from synthleak.errors import MissingDependencyError, SynthleakError
+from synthleak.progress import progress_display
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -72,11 +71,6 @@ class ExecutorError(SynthleakError, RuntimeError):
     """A task that failed in a worker; the message names the task."""
 
 
-def _bar(enabled: bool) -> Progress:
-    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    disable=not enabled)
-
-
 class Executor:
     """Runs ``fn(item)`` for every item; results in input order."""
 
@@ -124,7 +118,7 @@ class LocalExecutor(Executor):
             progress: bool = False) -> list[R]:
         items = list(items)
         results: list[Any] = [None] * len(items)
-        with _bar(progress and bool(items)) as bar:
+        with progress_display(progress and bool(items)) as bar:
             task = bar.add_task(description, total=len(items))
             if self.workers <= 1 or len(items) <= 1:
                 for i, item in enumerate(items):
@@ -215,7 +209,7 @@ class RayExecutor(Executor):
         index = {ref: i for i, ref in enumerate(refs)}
         results: list[Any] = [None] * len(items)
         pending = list(refs)
-        with _bar(progress and bool(items)) as bar:
+        with progress_display(progress and bool(items)) as bar:
             task = bar.add_task(description, total=len(items))
             while pending:
                 done, pending = ray.wait(pending, num_returns=1)

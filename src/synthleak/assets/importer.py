@@ -41,7 +41,7 @@ from synthleak.assets.builders.imported import parse_imported_model
 from synthleak.assets.import_store import IMPORTED_BUILDER, IMPORTED_DIR, ply_bytes
 from synthleak.assets.model import SUPPORTS, SYMMETRIES, ObjectModel
 from synthleak.atomic_io import folder_mode
-from synthleak.render.dataset import encode_png
+from synthleak.core.dataset import encode_png
 
 MAX_IMPORT_BYTES = 2 * 1024**3
 """Files larger than this are refused before reading (2 GiB)."""

@@ -35,15 +35,12 @@ from typing import Any
 import numpy as np
 
 from synthleak.attack.align import umeyama
-from synthleak.geometry.poses import camera_centre
+from synthleak.core.dataset import load_sequence
+from synthleak.geometry.poses import camera_centre, rotation_error_deg
 
 
 def _load(sequence: Any) -> Any:
-    if isinstance(sequence, str | Path):
-        from synthleak.render.dataset import load_sequence
-
-        return load_sequence(Path(sequence))
-    return sequence
+    return load_sequence(Path(sequence)) if isinstance(sequence, str | Path) else sequence
 
 
 def oracle_local_poses(sequence: Any) -> dict[str, np.ndarray]:
@@ -51,7 +48,7 @@ def oracle_local_poses(sequence: Any) -> dict[str, np.ndarray]:
     seq = _load(sequence)
     if getattr(seq, "frame", "object") != "object":
         raise ValueError(f"{seq.root}: objects.json frame is {seq.frame!r}, attacker sequences use 'object'")
-    return {name: np.array(seq.cam_from_world[name], dtype=np.float64) for name in seq.frames}
+    return {name: np.array(seq.cam_from_object[name], dtype=np.float64) for name in seq.frames}
 
 
 @dataclass
@@ -206,7 +203,7 @@ def sfm_local_poses(
     if seq.target_instance_id is None:
         raise ValueError(f"{seq.root}: objects.json target_instance_id is null: not an attacker sequence")
     names = list(seq.frames if frames is None else frames)
-    unknown = [n for n in names if n not in seq.cam_from_world]
+    unknown = [n for n in names if n not in seq.cam_from_object]
     if unknown:
         raise ValueError(f"frames: not in {seq.root}: {unknown[:5]}")
     workdir = Path(workdir)
@@ -307,7 +304,7 @@ def _register_to_gt(cam_from_local: dict[str, np.ndarray], seq, seed: int = 0
     import pycolmap
 
     src = np.array([camera_centre(cam_from_local[n]) for n in names])
-    dst = np.array([camera_centre(np.asarray(seq.cam_from_world[n])) for n in names])
+    dst = np.array([camera_centre(np.asarray(seq.cam_from_object[n])) for n in names])
     options = pycolmap.RANSACOptions()
     options.max_error = 0.05 * float(np.median(np.linalg.norm(dst, axis=1)))
     options.random_seed = int(seed) % (2**31)
@@ -333,10 +330,9 @@ def local_pose_errors(model: SfmLocalModel, sequence: Any) -> dict[str, float]:
     rot_ol = sim[:3, :3] / scale
     rot_errs, centre_errs = [], []
     for name, pose in model.cam_from_local.items():
-        gt = np.asarray(seq.cam_from_world[name])
+        gt = np.asarray(seq.cam_from_object[name])
         r_est = pose[:3, :3] @ rot_ol.T  # cam_from_object rotation implied by the local pose
-        cos = (np.trace(r_est @ gt[:3, :3].T) - 1) / 2
-        rot_errs.append(np.degrees(np.arccos(np.clip(cos, -1, 1))))
+        rot_errs.append(rotation_error_deg(r_est, gt[:3, :3]))
         c_obj = sim[:3, :3] @ camera_centre(pose) + sim[:3, 3]
         centre_errs.append(np.linalg.norm(c_obj - camera_centre(gt)))
     return {"median_rot_deg": float(np.median(rot_errs)), "median_centre_m": float(np.median(centre_errs))}
@@ -357,7 +353,7 @@ def _sequence_digest(seq, names: list[str]) -> str:
         digest.update(name.encode())
         digest.update(Path(seq.image_path(name)).read_bytes())
         digest.update(np.ascontiguousarray(seq.instance(name)).tobytes())
-        digest.update(np.asarray(seq.cam_from_world[name], dtype=np.float64).tobytes())
+        digest.update(np.asarray(seq.cam_from_object[name], dtype=np.float64).tobytes())
     return digest.hexdigest()
 
 

@@ -23,7 +23,7 @@ def furniture_coverage(instance: np.ndarray, shell_ids: set[int] | frozenset[int
 
 
 def sequence_coverage(seq: Any) -> dict[str, Any]:
-    """Coverage statistics of a rendered scene sequence (``render.dataset.Sequence``): walk-through frames
+    """Coverage statistics of a rendered scene sequence (``core.dataset.Sequence``): walk-through frames
     (map and held-out, not the close-ups) and close-ups separately."""
     shell = {int(o.instance_id) for o in seq.objects if o.role == "shell"}
     closeups = set(seq.split.get("closeup", []))

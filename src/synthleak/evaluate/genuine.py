@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
+from synthleak.core.dataset import load_sequence
 from synthleak.evaluate.query_log import read_query_log
 from synthleak.geometry.poses import camera_centre, rotation_error_deg
-from synthleak.render.dataset import load_sequence
 
 
 def genuine_localization(logs: Mapping[tuple[str, str], Path], scenes: Mapping[str, Path]) -> list[dict[str, Any]]:

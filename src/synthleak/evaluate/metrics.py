@@ -1,4 +1,5 @@
-"""Placement metrics against exact ground truth: rotation (symmetry-aware), centre distance, 3D IoU.
+"""Placement metrics against exact ground truth: rotation (:func:`rotation_block`, then the symmetry-aware
+:func:`synthleak.geometry.poses.rotation_error_deg`), centre distance, 3D IoU.
 
 Object canonical frames have +z up and their origin at the bottom centre of the bounding box, which
 spans ``[-x/2, x/2] x [-y/2, y/2] x [0, z]`` for extents ``(x, y, z)``; the box centre is ``(0, 0, z/2)``.
@@ -14,13 +15,13 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection
-from scipy.spatial.transform import Rotation
 
-SYMMETRIES = ("none", "2", "4", "z")
 DEFAULT_THRESHOLDS: tuple[tuple[float, float], ...] = ((10.0, 0.25), (30.0, 0.5), (60.0, 2.0))
 
 
-def _rotation_block(matrix: np.ndarray, name: str) -> np.ndarray:
+def rotation_block(matrix: np.ndarray, name: str) -> np.ndarray:
+    """The 3x3 rotation of a rotation, a 4x4 pose or a similarity ``[s R | t]`` (the scale divided out);
+    a ValueError naming ``name`` for a wrong shape, non-finite entries or a reflection."""
     arr = np.asarray(matrix, dtype=np.float64)
     if arr.shape not in ((3, 3), (4, 4)):
         raise ValueError(f"{name}: expected a 3x3 rotation or 4x4 pose, got shape {arr.shape}")
@@ -52,32 +53,6 @@ def _extents(extents: Sequence[float] | np.ndarray, name: str) -> np.ndarray:
     if ext.shape != (3,) or not np.all(np.isfinite(ext)) or np.any(ext <= 0):
         raise ValueError(f"{name}: expected three positive finite extents, got {extents!r}")
     return ext
-
-
-def _angle_deg(rot: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0))))
-
-
-def rotation_error_deg(R_est: np.ndarray, R_gt: np.ndarray, symmetry: str = "none") -> float:  # noqa: N803
-    """Rotation error in degrees, modulo the object's symmetry about its +z axis.
-
-    ``"none"``: angle of ``R_est R_gtᵀ``. ``"2"`` / ``"4"``: the minimum over the n-fold turns ``Rz(k 360/n)``
-    of the object frame (``R_gt Rz`` looks identical). ``"z"`` (continuous symmetry): any turn about z is
-    free, so the error is the angle between the two +z axes (the tilt). Accepts 3x3 or 4x4 inputs.
-    """
-    r_est = _rotation_block(R_est, "R_est")
-    r_gt = _rotation_block(R_gt, "R_gt")
-    if symmetry == "none":
-        return _angle_deg(r_est @ r_gt.T)
-    if symmetry in ("2", "4"):
-        n = int(symmetry)
-        angles = np.array([[360.0 * k / n] for k in range(n)])
-        turns = Rotation.from_euler("z", angles, degrees=True).as_matrix()
-        return min(_angle_deg(r_est @ (r_gt @ turn).T) for turn in turns)
-    if symmetry == "z":
-        cos = float(np.clip(r_est[:, 2] @ r_gt[:, 2], -1.0, 1.0))
-        return math.degrees(math.acos(cos))
-    raise ValueError(f"symmetry: unknown value {symmetry!r} (expected one of {SYMMETRIES})")
 
 
 def object_centre(world_from_object: np.ndarray, extents: Sequence[float] | np.ndarray) -> np.ndarray:

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from synthleak.core.dataset import load_sequence
 from synthleak.evaluate.plots import plot_room_topdown
-from synthleak.render.dataset import load_sequence
 
 
 def room_plots(config: Any, rooms: Sequence[Mapping[str, Any]], scenes: Mapping[str, Path],

@@ -7,7 +7,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from synthleak.evaluate.metrics import iou_3d, rotation_error_deg, translation_error_m
+from synthleak.evaluate.metrics import iou_3d, rotation_block, translation_error_m
+from synthleak.geometry.poses import rotation_error_deg
 
 
 def score_placement(
@@ -38,7 +39,7 @@ def score_placement(
     if gt_extents is None:
         raise ValueError("gt_extents: required when world_from_object_gt is given")
     gt = np.asarray(world_from_object_gt, dtype=np.float64)
-    out["rot_err_deg"] = rotation_error_deg(est, gt, symmetry)
+    out["rot_err_deg"] = rotation_error_deg(rotation_block(est, "R_est"), rotation_block(gt, "R_gt"), symmetry)
     out["trans_err_m"] = translation_error_m(est, gt, gt_extents, extents_est=est_extents)
     out["iou3d"] = iou_3d(est, est_extents, gt, gt_extents)
     return out

@@ -7,9 +7,9 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from synthleak.core.dataset import load_sequence
 from synthleak.evaluate.coverage import sequence_coverage
 from synthleak.evaluate.tables import markdown_table
-from synthleak.render.dataset import load_sequence
 
 
 def world_summary(config: Any, rooms: Sequence[Mapping[str, Any]], scenes: Mapping[str, Path]) -> dict[str, Any]:

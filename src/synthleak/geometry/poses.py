@@ -8,12 +8,15 @@ All poses are 4x4 homogeneous matrices acting on column vectors, float64, metres
   camera axes are +x right, +y down, +z forward (optical axis).
 * ``world_from_cam`` is its inverse; its translation is the camera centre in the world.
 * ``scene_from_object`` / ``world_from_object`` place an object's canonical frame in a scene.
-* ``object_from_cam`` is a camera pose expressed in an object's canonical frame (attacker sequences).
+* ``cam_from_object`` is the pose attacker sequences store: the photographed object's canonical frame plays the
+  world (its inverse ``object_from_cam`` places the camera in the object frame).
 
 Quaternions are ``[qw, qx, qy, qz]`` (COLMAP order), scipy's Rotation is used underneath.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -65,9 +68,38 @@ def rotation_angle_deg(rotation: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
-def rotation_error_deg(r_a: np.ndarray, r_b: np.ndarray) -> float:
-    """Angle of ``r_a r_b^T`` in degrees."""
-    return rotation_angle_deg(r_a @ r_b.T)
+SYMMETRIES = ("none", "2", "4", "z")
+"""An object's symmetry about its canonical +z axis: none, 2- or 4-fold turns, or any turn (``z``)."""
+
+
+def _rotation_of(matrix: np.ndarray, name: str) -> np.ndarray:
+    arr = np.asarray(matrix, dtype=np.float64)
+    if arr.shape not in ((3, 3), (4, 4)):
+        raise ValueError(f"{name}: expected a 3x3 rotation or 4x4 pose, got shape {arr.shape}")
+    return arr[:3, :3]
+
+
+def rotation_error_deg(r_a: np.ndarray, r_b: np.ndarray, symmetry: str = "none") -> float:
+    """Angle of ``r_a r_bᵀ`` in degrees, modulo an object's symmetry about its +z axis (``r_b`` placing it).
+
+    Accepts 3x3 rotations or 4x4 poses, whose rotation blocks are used as they are (divide a similarity's
+    scale out first: :func:`synthleak.evaluate.metrics.rotation_block`). ``"none"``: the angle of
+    ``r_a r_bᵀ``. ``"2"`` / ``"4"``: the minimum over the n-fold turns ``Rz(k 360/n)`` of the object frame
+    (``r_b Rz`` looks identical). ``"z"`` (continuous symmetry): any turn about z is free, so the error is the
+    angle between the two +z axes (the tilt).
+    """
+    r_a, r_b = _rotation_of(r_a, "r_a"), _rotation_of(r_b, "r_b")
+    if symmetry == "none":
+        return rotation_angle_deg(r_a @ r_b.T)
+    if symmetry in ("2", "4"):
+        n = int(symmetry)
+        angles = np.array([[360.0 * k / n] for k in range(n)])
+        turns = Rotation.from_euler("z", angles, degrees=True).as_matrix()
+        return min(rotation_angle_deg(r_a @ (r_b @ turn).T) for turn in turns)
+    if symmetry == "z":
+        cos = float(np.clip(r_a[:, 2] @ r_b[:, 2], -1.0, 1.0))
+        return math.degrees(math.acos(cos))
+    raise ValueError(f"symmetry: unknown value {symmetry!r} (expected one of {SYMMETRIES})")
 
 
 def quat_wxyz_from_matrix(rotation: np.ndarray) -> np.ndarray:

@@ -11,15 +11,14 @@ The sheet is ``frames * H`` pixels high and ``4 * W + BAR_W`` wide; drawing is O
 from __future__ import annotations
 
 import colorsys
-import json
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from synthleak.atomic_io import atomic_write_bytes
+from synthleak.core.dataset import DatasetError, Sequence, encode_png, load_sequence, read_json
 from synthleak.geometry.poses import make_pose, transform_points
-from synthleak.render.dataset import DatasetError, Sequence, encode_png, load_sequence
 
 BAR_W = 44
 """Width in pixels of the depth scale bar appended to the depth panel."""
@@ -83,14 +82,7 @@ def sample_frames(frames: list[str], n: int) -> list[str]:
 
 
 def _bop(seq: Sequence) -> tuple[dict, dict]:
-    out = []
-    for name in ("scene_gt.json", "scene_camera.json"):
-        path = seq.root / "bop" / name
-        try:
-            out.append(json.loads(path.read_text()))
-        except (OSError, json.JSONDecodeError) as exc:
-            raise DatasetError(f"{path}: missing or unreadable ({exc})") from exc
-    return out[0], out[1]
+    return read_json(seq.root / "bop" / "scene_gt.json"), read_json(seq.root / "bop" / "scene_camera.json")
 
 
 def box_corners(extents: np.ndarray) -> np.ndarray:

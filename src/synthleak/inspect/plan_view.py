@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from synthleak.atomic_io import atomic_write_bytes
+from synthleak.core.dataset import DatasetError, load_sequence
 from synthleak.core.types import RenderScene
 from synthleak.geometry.poses import invert
-from synthleak.render.dataset import DatasetError, load_sequence
 
 FIG_INCHES = 7.0
 DPI = 100

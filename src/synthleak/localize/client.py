@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import io
 import time
 
 import httpx
 import numpy as np
-from PIL import Image
 
+from synthleak.core.dataset import encode_png
 from synthleak.core.types import Camera
 from synthleak.geometry.poses import make_pose, matrix_from_quat_wxyz
 from synthleak.localize.localizer import LocalizationResult
@@ -20,12 +19,6 @@ class LocalizationServiceError(RuntimeError):
     def __init__(self, status_code: int, message: str) -> None:
         super().__init__(f"HTTP {status_code}: {message}")
         self.status_code = status_code
-
-
-def encode_png(image: np.ndarray) -> bytes:
-    buffer = io.BytesIO()
-    Image.fromarray(np.asarray(image, dtype=np.uint8)).save(buffer, format="PNG")
-    return buffer.getvalue()
 
 
 class HttpLocalizer:
@@ -49,7 +42,7 @@ class HttpLocalizer:
 
     def localize(self, image: np.ndarray | bytes, camera: Camera | None = None) -> LocalizationResult:
         t0 = time.perf_counter()
-        body = bytes(image) if isinstance(image, bytes | bytearray) else encode_png(image)
+        body = bytes(image) if isinstance(image, bytes | bytearray) else encode_png(np.asarray(image, dtype=np.uint8))
         params = {}
         if camera is not None:
             params = {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,

@@ -19,10 +19,10 @@ import pycolmap
 
 from synthleak.atomic_io import atomic_write_text
 from synthleak.config import LocalizeConfig
+from synthleak.core.dataset import DatasetError, Sequence, load_sequence
 from synthleak.localize.features import Features
 from synthleak.localize.pairs import pairs_from_poses
 from synthleak.localize.retrieval import BowIndex, BowParams
-from synthleak.localize.sequence import SequenceError, SequenceFiles, read_sequence
 from synthleak.localize.store import FORMAT_VERSION, camera_to_json
 from synthleak.localize.tiers import get_tier
 from synthleak.localize.triangulation import (
@@ -40,7 +40,7 @@ TRIANGULATION_MAX_ERROR_PX = 4.0
 TRIANGULATION_MIN_ANGLE_DEG = 1.0
 
 
-def inputs_hash(seq: SequenceFiles) -> str:
+def inputs_hash(seq: Sequence) -> str:
     """sha256 over the camera, poses, split and the map frames' images and instance masks."""
     digest = hashlib.sha256()
     files = [seq.root / "colmap" / "cameras.txt", seq.root / "colmap" / "images.txt", seq.root / "split.json"]
@@ -89,9 +89,9 @@ def build_map(
     config = config or LocalizeConfig()
     sequence_dir, out_dir = Path(sequence_dir), Path(out_dir)
     tier_spec = get_tier(tier)
-    seq = read_sequence(sequence_dir)
+    seq = load_sequence(sequence_dir)
     if len(seq.map_frames) < 2:
-        raise SequenceError(f"{sequence_dir / 'split.json'}: field 'map' needs at least 2 frames")
+        raise DatasetError(f"{sequence_dir / 'split.json'}: field 'map' needs at least 2 frames")
     digest = inputs_hash(seq)
     weights = tier_spec.weights_record(weights_dir)
     settings = _map_settings(tier, config, weights)
@@ -107,7 +107,7 @@ def build_map(
     extractor = tier_spec.make_extractor(config.max_keypoints, weights_dir)
     matcher = tier_spec.make_matcher(weights_dir)
     names = list(seq.map_frames)
-    poses = [seq.cam_from_world[n] for n in names]
+    poses = [seq.pose(n) for n in names]  # the map's world is the sequence's frame (cam_from_world of a scene)
     features: list[Features] = [extractor(seq.rgb(n)) for n in progress_bar(names, "features", progress)]
 
     k = seq.camera.K
@@ -187,7 +187,7 @@ def _vote(obs: list[tuple[int, int]], keypoints: list[np.ndarray], masks: list[n
     return min(votes.items(), key=lambda kv: (-kv[1], kv[0]))[0]
 
 
-def _write_colmap(path: Path, seq: SequenceFiles, names, poses, features, points) -> list[int]:
+def _write_colmap(path: Path, seq: Sequence, names, poses, features, points) -> list[int]:
     cam = seq.camera
     rec = pycolmap.Reconstruction()
     camera = pycolmap.Camera(model="PINHOLE", width=cam.width, height=cam.height,

@@ -29,15 +29,10 @@ import numpy as np
 import trimesh
 
 from synthleak.atomic_io import atomic_write_bytes, atomic_write_text
+from synthleak.core.dataset import DatasetError, encode_png, load_sequence, read_json
 from synthleak.core.types import Camera, RenderScene
 from synthleak.geometry.poses import invert, make_pose, transform_points
-from synthleak.render.dataset import (
-    DatasetError,
-    atomic_write_json,
-    encode_png,
-    load_sequence,
-    read_json,
-)
+from synthleak.render.dataset import atomic_write_json
 
 ENLARGE = 3
 """Silhouettes for ``px_count_all`` / ``bbox_obj`` are counted in an image ENLARGE times as wide and high."""

@@ -1,39 +1,22 @@
-"""Sequence folders of docs/DATASET.md: atomic writers for frames and metadata, and ``load_sequence``.
-
-Frame names are the image file names (``000000.png``), as COLMAP's ``images.txt`` NAME and ``split.json``
-use them; accessors also accept the bare stem (``000000``) or an integer index.
+"""Renderer-side writers of the sequence folders of docs/DATASET.md: frames, COLMAP / BOP / objects.json metadata
+and ``split.json``, each file atomically. The contract itself (file names, encodings, the reader
+``load_sequence``) is :mod:`synthleak.core.dataset`.
 """
 
 from __future__ import annotations
 
-import io
 import json
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from synthleak.atomic_io import TEMP_PREFIX, atomic_write_bytes, atomic_write_text
+from synthleak.core.dataset import BOP_DEPTH_SCALE, DatasetError, encode_npy, encode_png, frame_paths, frame_stem
 from synthleak.core.types import Camera, InstanceInfo
-from synthleak.errors import SynthleakError
-from synthleak.geometry.poses import (
-    check_pose,
-    invert,
-    make_pose,
-    matrix_from_quat_wxyz,
-    quat_wxyz_from_matrix,
-)
+from synthleak.geometry.poses import check_pose, invert, quat_wxyz_from_matrix
 from synthleak.render.base import Frame
-
-BOP_DEPTH_SCALE = 0.25
-"""BOP 16-bit depth PNGs hold depth_mm / BOP_DEPTH_SCALE: 0.25 mm steps up to 16.4 m (0.1 would stop at 6.5 m)."""
-
-
-class DatasetError(SynthleakError, ValueError):
-    """A malformed dataset file; the message names the file and the field."""
 
 
 def _plain(value: Any) -> Any:
@@ -63,69 +46,7 @@ def clean_temp_files(folder: Path) -> int:
     return count
 
 
-def encode_png(image: np.ndarray) -> bytes:
-    """PNG bytes of an RGB uint8 (H, W, 3) or a uint8 / uint16 (H, W) image (deterministic)."""
-    array = np.ascontiguousarray(image)
-    if array.ndim == 3:
-        array = np.ascontiguousarray(array[..., ::-1])  # OpenCV writes BGR
-    ok, buf = cv2.imencode(".png", array, [cv2.IMWRITE_PNG_COMPRESSION, 3])
-    if not ok:
-        raise ValueError(f"cannot encode a {array.dtype} {array.shape} image as PNG")
-    return buf.tobytes()
-
-
-def encode_npy(array: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.save(buf, np.ascontiguousarray(array), allow_pickle=False)
-    return buf.getvalue()
-
-
 # ------------------------------------------------------------------------------------------------- frames
-def frame_name(index: int) -> str:
-    return f"{index:06d}.png"
-
-
-def frame_stem(frame: str | int) -> str:
-    if isinstance(frame, int | np.integer):
-        return f"{int(frame):06d}"
-    return str(frame).removesuffix(".png").removesuffix(".npy")
-
-
-def frame_paths(seq_dir: Path, frame: str | int) -> dict[str, Path]:
-    stem = frame_stem(frame)
-    seq_dir = Path(seq_dir)
-    return {
-        "rgb": seq_dir / "images" / f"{stem}.png",
-        "depth": seq_dir / "depth" / f"{stem}.npy",
-        "instance": seq_dir / "instance" / f"{stem}.png",
-    }
-
-
-def _png_whole(path: Path) -> bool:
-    with open(path, "rb") as handle:
-        head = handle.read(8)
-        handle.seek(max(path.stat().st_size - 12, 0))
-        tail = handle.read(12)
-    return head == b"\x89PNG\r\n\x1a\n" and tail[4:8] == b"IEND"
-
-
-def _npy_whole(path: Path) -> bool:
-    try:
-        array = np.load(path, mmap_mode="r", allow_pickle=False)
-    except (OSError, ValueError):
-        return False
-    return array.dtype == np.float32
-
-
-def frame_complete(seq_dir: Path, frame: str | int) -> bool:
-    """All files of the frame exist and are whole (PNG up to its IEND chunk, npy as long as its header
-    says). Our writers are atomic; the check also catches files truncated by other means."""
-    paths = frame_paths(seq_dir, frame)
-    if not all(p.is_file() for p in paths.values()):
-        return False
-    return _png_whole(paths["rgb"]) and _png_whole(paths["instance"]) and _npy_whole(paths["depth"])
-
-
 def write_frame(seq_dir: Path, frame: str | int, data: Frame) -> None:
     """Write depth, instance, then RGB of one frame, each atomically."""
     h, w = data.depth.shape
@@ -212,12 +133,13 @@ def _colmap_images(names: list[str], poses: list[np.ndarray]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def check_existing_plan(seq_dir: Path, camera: Camera, frames: list[str], cam_from_world: list[np.ndarray]) -> None:
-    """Refuse to resume into a folder whose COLMAP files describe other cameras or poses (another config)."""
+def check_existing_plan(seq_dir: Path, camera: Camera, frames: list[str], poses: list[np.ndarray]) -> None:
+    """Refuse to resume into a folder whose COLMAP files describe other cameras or poses (another config).
+    ``poses`` as :func:`write_sequence_metadata` takes them."""
     seq_dir = Path(seq_dir)
     for path, text in (
         (seq_dir / "colmap" / "cameras.txt", _colmap_cameras(camera)),
-        (seq_dir / "colmap" / "images.txt", _colmap_images(frames, [np.asarray(p) for p in cam_from_world])),
+        (seq_dir / "colmap" / "images.txt", _colmap_images(frames, [np.asarray(p) for p in poses])),
     ):
         if path.is_file() and path.read_text() != text:
             raise DatasetError(
@@ -231,21 +153,21 @@ def write_sequence_metadata(
     *,
     camera: Camera,
     frames: list[str],
-    cam_from_world: list[np.ndarray],
+    poses: list[np.ndarray],
     instances: list[InstanceInfo],
     frame: str = "world",
     target_instance_id: int | None = None,
     split: dict[str, list[str]] | None = None,
 ) -> None:
-    """COLMAP text, BOP json, objects.json and (scenes) split.json. Poses must already be in ``frame``.
-
-    For ``frame == "object"`` the caller passes ``cam_from_object`` poses and instances whose
-    ``world_from_object`` is expressed in the target's canonical frame (see :func:`to_object_frame`).
+    """COLMAP text, BOP json, objects.json and (scenes) split.json. ``poses`` are in ``frame``: ``cam_from_world``
+    for ``frame == "world"``; for ``frame == "object"`` (attacker sequences) ``cam_from_object`` poses and instances
+    whose ``world_from_object`` is expressed in the target's canonical frame (see :func:`to_object_frame`).
     """
     seq_dir = Path(seq_dir)
     if frame not in ("world", "object"):
         raise ValueError(f"frame must be 'world' or 'object', got {frame!r}")
-    poses = [check_pose(p, f"{seq_dir.name}/{n}: cam_from_world") for n, p in zip(frames, cam_from_world, strict=True)]
+    pose_name = "cam_from_world" if frame == "world" else "cam_from_object"
+    poses = [check_pose(p, f"{seq_dir.name}/{n}: {pose_name}") for n, p in zip(frames, poses, strict=True)]
     atomic_write_text(seq_dir / "colmap" / "cameras.txt", _colmap_cameras(camera))
     atomic_write_text(seq_dir / "colmap" / "images.txt", _colmap_images(frames, poses))
     atomic_write_text(
@@ -290,7 +212,8 @@ def write_sequence_metadata(
 def to_object_frame(
     cam_from_world: list[np.ndarray], instances: dict[int, InstanceInfo], target_id: int
 ) -> tuple[list[np.ndarray], list[InstanceInfo]]:
-    """Re-express poses and instances in the target's canonical frame (attacker sequences)."""
+    """Re-express poses and instances in the target's canonical frame (attacker sequences): ``cam_from_world`` in,
+    ``cam_from_object`` out (the target's ``world_from_object`` becomes the identity)."""
     if target_id not in instances:
         raise ValueError(f"target_instance_id {target_id} is not an instance of the scene")
     world_from_target = np.asarray(instances[target_id].world_from_object, dtype=np.float64)
@@ -311,202 +234,3 @@ def make_split(frames: list[str], query_every: int) -> dict[str, list[str]]:
         raise ValueError(f"render.query_every must be >= 2, got {query_every}")
     query = [f for i, f in enumerate(frames) if i % query_every == query_every - 1]
     return {"map": [f for f in frames if f not in set(query)], "query": query}
-
-
-# ------------------------------------------------------------------------------------------------- reader
-@dataclass
-class Sequence:
-    """One rendered sequence folder (see docs/DATASET.md)."""
-
-    root: Path
-    name: str
-    kind: str
-    camera: Camera
-    frames: list[str]
-    cam_from_world: dict[str, np.ndarray]
-    objects: list[InstanceInfo]
-    frame: str = "world"
-    target_instance_id: int | None = None
-    split: dict[str, list[str]] = field(default_factory=dict)
-
-    def _key(self, frame: str | int) -> str:
-        return f"{frame_stem(frame)}.png"
-
-    def pose(self, frame: str | int) -> np.ndarray:
-        return self.cam_from_world[self._key(frame)]
-
-    def image_path(self, frame: str | int) -> Path:
-        return frame_paths(self.root, frame)["rgb"]
-
-    def rgb(self, frame: str | int) -> np.ndarray:
-        path = self.image_path(frame)
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if image is None:
-            raise DatasetError(f"{path}: missing or unreadable RGB image")
-        return np.ascontiguousarray(image[..., ::-1])
-
-    def depth(self, frame: str | int) -> np.ndarray:
-        path = frame_paths(self.root, frame)["depth"]
-        try:
-            depth = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise DatasetError(f"{path}: unreadable depth ({exc})") from exc
-        if depth.dtype != np.float32 or depth.shape != (self.camera.height, self.camera.width):
-            raise DatasetError(
-                f"{path}: depth must be float32 {(self.camera.height, self.camera.width)}, "
-                f"got {depth.dtype} {depth.shape}"
-            )
-        return depth
-
-    def instance(self, frame: str | int) -> np.ndarray:
-        path = frame_paths(self.root, frame)["instance"]
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None or image.dtype != np.uint16:
-            raise DatasetError(f"{path}: missing instance image or not 16-bit")
-        return image
-
-    def objects_by_id(self) -> dict[int, InstanceInfo]:
-        return {o.instance_id: o for o in self.objects}
-
-
-def read_json(path: Path) -> Any:
-    """A sequence's JSON file; a DatasetError naming the file when it is missing or malformed."""
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing file (render the sequence first)")
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise DatasetError(f"{path}: not valid JSON ({exc})") from exc
-
-
-def _data_lines(path: Path) -> list[str]:
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing file")
-    return [line for line in path.read_text().splitlines() if line.strip() and not line.startswith("#")]
-
-
-def _floats(path: Path, field_name: str, tokens: list[str]) -> np.ndarray:
-    try:
-        values = np.array([float(t) for t in tokens])
-    except ValueError as exc:
-        raise DatasetError(f"{path}: {field_name}: not numbers: {tokens}") from exc
-    if not np.all(np.isfinite(values)):
-        raise DatasetError(f"{path}: {field_name}: non-finite value in {tokens}")
-    return values
-
-
-def read_colmap_camera(path: Path) -> Camera:
-    lines = _data_lines(path)
-    if len(lines) != 1:
-        raise DatasetError(f"{path}: expected exactly one camera, found {len(lines)}")
-    tok = lines[0].split()
-    if len(tok) != 8 or tok[1] != "PINHOLE":
-        raise DatasetError(f"{path}: camera 1: expected 'ID PINHOLE W H fx fy cx cy', got {lines[0]!r}")
-    fx, fy, cx, cy = _floats(path, "camera params", tok[4:8])
-    try:
-        width, height = int(tok[2]), int(tok[3])
-    except ValueError as exc:
-        raise DatasetError(f"{path}: camera width/height are not integers: {tok[2:4]}") from exc
-    return Camera(width, height, float(fx), float(fy), float(cx), float(cy))
-
-
-def read_colmap_images(path: Path) -> dict[str, np.ndarray]:
-    """``{NAME: cam_from_world}`` from a COLMAP images.txt with empty POINTS2D lines."""
-    if not path.is_file():
-        raise DatasetError(f"{path}: missing file")
-    lines = [line for line in path.read_text().splitlines() if not line.startswith("#")]
-    poses: dict[str, np.ndarray] = {}
-    for line in lines[0::2]:
-        tok = line.split()
-        if not tok:
-            continue
-        if len(tok) != 10:
-            raise DatasetError(f"{path}: image line needs 10 fields, got {line!r}")
-        name = tok[9]
-        values = _floats(path, f"image {name} pose", tok[1:8])
-        q = values[:4]
-        if abs(np.linalg.norm(q) - 1.0) > 1e-6:
-            raise DatasetError(f"{path}: image {name}: quaternion is not unit length ({q})")
-        poses[name] = make_pose(matrix_from_quat_wxyz(q / np.linalg.norm(q)), values[4:7])
-    return poses
-
-
-def _instance_from_dict(path: Path, i: int, d: dict[str, Any]) -> InstanceInfo:
-    where = f"{path}: instances[{i}]"
-    try:
-        pose = np.asarray(d["world_from_object"], dtype=np.float64)
-        extents = np.asarray(d["extents"], dtype=np.float64)
-        info = InstanceInfo(
-            instance_id=int(d["instance_id"]),
-            name=str(d["name"]),
-            model_id=str(d["model_id"]),
-            category=str(d["category"]),
-            symmetry=str(d["symmetry"]),
-            role=str(d["role"]),
-            world_from_object=pose,
-            extents=extents,
-            variant_params=dict(d.get("variant_params", {})),
-            prim_path=str(d.get("prim_path", "")),
-            support=str(d.get("support", "floor")),
-        )
-    except KeyError as exc:
-        raise DatasetError(f"{where}: missing field {exc.args[0]!r}") from exc
-    except (TypeError, ValueError) as exc:
-        raise DatasetError(f"{where}: bad value ({exc})") from exc
-    try:
-        check_pose(pose, f"{where}.world_from_object")
-    except ValueError as exc:
-        raise DatasetError(str(exc)) from exc
-    if extents.shape != (3,) or not np.all(np.isfinite(extents)):
-        raise DatasetError(f"{where}.extents: expected 3 finite numbers")
-    return info
-
-
-def load_sequence(path: Path) -> Sequence:
-    """Read a sequence folder's metadata (images are read lazily by the accessors)."""
-    root = Path(path)
-    if not root.is_dir():
-        raise DatasetError(f"{root}: no such sequence folder")
-    camera = read_colmap_camera(root / "colmap" / "cameras.txt")
-    poses = read_colmap_images(root / "colmap" / "images.txt")
-    objects_path = root / "objects.json"
-    objects = read_json(objects_path)
-    for key in ("instances", "frame", "target_instance_id"):
-        if key not in objects:
-            raise DatasetError(f"{objects_path}: missing field {key!r}")
-    frame = objects["frame"]
-    if frame not in ("world", "object"):
-        raise DatasetError(f"{objects_path}: frame: expected 'world' or 'object', got {frame!r}")
-    instances = [_instance_from_dict(objects_path, i, d) for i, d in enumerate(objects["instances"])]
-    kind = "attacker" if frame == "object" else "scene"
-    split: dict[str, list[str]] = {}
-    split_path = root / "split.json"
-    if split_path.is_file():
-        raw = read_json(split_path)
-        keys = ("map", "query", *(("closeup",) if "closeup" in raw else ()))
-        for key in keys:
-            if not isinstance(raw.get(key), list):
-                raise DatasetError(f"{split_path}: field {key!r} must be a list of frame names")
-            unknown = [f for f in raw[key] if f not in poses]
-            if unknown:
-                raise DatasetError(f"{split_path}: {key}: frames not in colmap/images.txt: {unknown[:5]}")
-        not_queries = sorted(set(raw.get("closeup", [])) - set(raw["query"]))
-        if not_queries:
-            raise DatasetError(f"{split_path}: closeup: frames that are not queries: {not_queries[:5]}")
-        split = {key: list(raw[key]) for key in keys}
-    for name, pose in poses.items():
-        if not np.all(np.isfinite(pose)):
-            raise DatasetError(f"{root / 'colmap' / 'images.txt'}: image {name}: non-finite pose")
-    target = objects["target_instance_id"]
-    return Sequence(
-        root=root,
-        name=root.name,
-        kind=kind,
-        camera=camera,
-        frames=sorted(poses),
-        cam_from_world=poses,
-        objects=instances,
-        frame=frame,
-        target_instance_id=None if target is None else int(target),
-        split=split,
-    )

@@ -10,28 +10,25 @@ file) last: its presence marks a finished dataset.
 from __future__ import annotations
 
 import hashlib
-import json
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import Progress
 
 from synthleak.cache import MARKER
 from synthleak.config import StudyConfig, config_to_dict
+from synthleak.core.dataset import BOP_DEPTH_SCALE, frame_complete, frame_name, read_index
 from synthleak.core.types import Camera, RenderScene
 from synthleak.errors import StageError
 from synthleak.executors import Executor, LocalExecutor, chunks
 from synthleak.render.bop_full import write_bop_extras
 from synthleak.render.dataset import (
-    BOP_DEPTH_SCALE,
     atomic_write_json,
     check_existing_plan,
     clean_temp_files,
-    frame_complete,
-    frame_name,
     make_split,
     to_object_frame,
     write_bop_rgb,
@@ -58,16 +55,6 @@ PACKAGES = (
     "pillow",
     "rich",
 )
-
-
-def _progress(enabled: bool) -> Progress:
-    return Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeRemainingColumn(),
-        disable=not enabled,
-    )
 
 
 def load_stage(scene_path: Path) -> RenderScene:
@@ -230,7 +217,7 @@ def plan_sequence(job: SequenceJob, config: StudyConfig, scene: RenderScene | No
         out_dir,
         camera=camera,
         frames=frames,
-        cam_from_world=stored_poses,
+        poses=stored_poses,
         instances=instances,
         frame="object" if kind == "attacker" else "world",
         target_instance_id=scene.target_instance_id if kind == "attacker" else None,
@@ -286,28 +273,6 @@ def render_sequence(
     return render_sequences([job], config, executor, progress=bool(progress))[0]
 
 
-def _read_index(stages_dir: Path) -> dict[str, Any]:
-    path = Path(stages_dir) / "index.json"
-    if not path.is_file():
-        raise StageError(f"{path}: stage index does not exist (run `synthleak scenes` first)")
-    try:
-        index = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise StageError(f"{path}: not valid JSON ({exc})") from exc
-    for key in ("rooms", "attacker_objects"):
-        if not isinstance(index.get(key), list):
-            raise StageError(f"{path}: field {key!r} must be a list")
-    for i, room in enumerate(index["rooms"]):
-        for key in ("name", "stage"):
-            if not isinstance(room.get(key), str):
-                raise StageError(f"{path}: rooms[{i}].{key} must be a string")
-    for i, obj in enumerate(index["attacker_objects"]):
-        for key in ("id", "stage"):
-            if not isinstance(obj.get(key), str):
-                raise StageError(f"{path}: attacker_objects[{i}].{key} must be a string")
-    return index
-
-
 STAGE_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 """File name suffixes of USD stages."""
 
@@ -352,7 +317,7 @@ def stage_jobs(stages: Path, out_dir: Path) -> list[SequenceJob]:
     target instance, a scene sequence (``out_dir/scenes/<stem>``) otherwise."""
     stages, out_dir = Path(stages), Path(out_dir)
     if stages.is_dir() and (stages / "index.json").is_file():
-        index = _read_index(stages)
+        index = read_index(stages)
         jobs = [(stages / r["stage"], out_dir / "scenes" / r["name"], "scene") for r in index["rooms"]]
         jobs += [(stages / a["stage"], out_dir / "attackers" / a["id"], "attacker")
                  for a in index["attacker_objects"]]

@@ -16,16 +16,15 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
 from synthleak.config import StudyConfig
+from synthleak.core.dataset import INDEX_NAME, DatasetError, read_index
 from synthleak.paths import scenes_usd_dir
+from synthleak.progress import progress_display
 from synthleak.scene.plan import ATTACKER_TARGET_ID, AttackerPlan, RoomPlan, StudyPlan, plan_study
 from synthleak.scene.usd_write import write_stage
 
 STAGE_FORMAT = 1
 """Bump when the composer's output changes for the same plan (invalidates skip keys)."""
-INDEX_NAME = "index.json"
 
 
 def _sha256(path: Path) -> str:
@@ -90,9 +89,11 @@ def _reusable(old: dict[str, Any] | None, key: str, path: Path) -> bool:
 
 
 def _load_old_index(out_dir: Path) -> dict[str, Any]:
+    """The previous ``index.json`` (:func:`synthleak.core.dataset.read_index`); none or a malformed one: ``{}``
+    (every stage is rebuilt)."""
     try:
-        return json.loads((out_dir / INDEX_NAME).read_text())
-    except (OSError, json.JSONDecodeError):
+        return read_index(out_dir)
+    except (OSError, DatasetError):
         return {}
 
 
@@ -167,26 +168,15 @@ def _attacker_entry(plan: AttackerPlan, library: Mapping, seed: int, out_dir: Pa
     return entry | ({"skus": dict(plan.materials)} if plan.materials else {})
 
 
-def _progress(enabled: bool) -> Progress:
-    return Progress(
-        TextColumn("[bold]stages[/] {task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        disable=not enabled,
-        transient=False,
-    )
-
-
 def _run(
     tasks: list[tuple[str, str, Callable[[], dict]]], old: Mapping[str, dict], progress: bool
 ) -> dict[str, dict]:
     """Run (name, plan_key, build) tasks, reusing old entries whose stage is unchanged on disk."""
     out: dict[str, dict] = {}
-    with _progress(progress) as bar:
-        task_id = bar.add_task("", total=len(tasks))
+    with progress_display(progress) as bar:
+        task_id = bar.add_task("stages", total=len(tasks))
         for name, key, build in tasks:
-            bar.update(task_id, description=name)
+            bar.update(task_id, description=f"stages {name}")
             previous = old.get(name)
             stage = previous.get("_path") if previous else None
             if previous is not None and stage is not None and _reusable(previous, key, Path(stage)):

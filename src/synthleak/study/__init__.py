@@ -16,7 +16,7 @@ from typing import Any
 
 _EXPORTS = {
     "run_study": "run", "STAGES": "run", "STAGE_TYPES": "run", "check_force": "run", "study_stages": "run",
-    "StudyPaths": "paths", "load_index": "paths",
+    "StudyPaths": "paths",
     "StudyContext": "context", "Stage": "context", "Unit": "context",
     "RenderStage": "render", "MapsStage": "maps", "FeaturesStage": "features", "QueriesStage": "queries",
     "AttackStage": "attack", "attack_rows": "attack",

@@ -8,13 +8,13 @@ from typing import Any
 from synthleak.attack.local_poses import attacker_local_poses
 from synthleak.cache import cache_key, done_key
 from synthleak.config import StudyConfig
+from synthleak.core.dataset import load_sequence, read_index
 from synthleak.evaluate.attack_pairs import ServerLabels, object_rows
 from synthleak.evaluate.defense_online import without_defense
 from synthleak.evaluate.query_log import read_query_log
 from synthleak.evaluate.tables import apply_presence_decisions, read_results, write_results
-from synthleak.render.dataset import load_sequence
 from synthleak.study.context import Stage, StudyContext, Unit
-from synthleak.study.paths import StudyPaths, load_index
+from synthleak.study.paths import StudyPaths
 
 
 def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, str], Path],
@@ -24,7 +24,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
     leave-one-scene-out and placement scored against the room's ground truth. The attacker objects are those
     of ``paths.dataset`` (a variant-sweep point's own; rows tagged ``magnitude`` and ``kind``). ``undefended``:
     attack the answers the server gave before its online defense refused some (the same logged queries)."""
-    rooms = {room["name"]: room for room in load_index(paths.scene_dataset)["rooms"]}
+    rooms = {room["name"]: room for room in read_index(paths.scene_dataset / "stages")["rooms"]}
     room_objects = {name: load_sequence(paths.scene(name)).objects_by_id() for name in rooms}
     by_object: dict[tuple[str, str], dict[str, list[dict]]] = {}  # each log parsed once, not once per object
     for name, log in logs.items():
@@ -33,7 +33,7 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
             by_object.setdefault(name, {}).setdefault(q["attacker_object"], []).append(q)
     servers = {name: ServerLabels.read(paths.map_dir(*name)) for name in logs}
     rows: list[dict[str, Any]] = []
-    for obj in load_index(paths.dataset)["attacker_objects"]:
+    for obj in read_index(paths.dataset / "stages")["attacker_objects"]:
         seq = load_sequence(paths.attacker(obj["id"]))
         local, object_from_local = attacker_local_poses(config.attack.local_model, seq, paths.sfm_dir(obj["id"]),
                                                         config.seed)

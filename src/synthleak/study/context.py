@@ -10,10 +10,11 @@ from typing import Any, ClassVar
 
 from synthleak.cache import done_key, is_done, mark_done
 from synthleak.config import StudyConfig, config_to_dict
+from synthleak.core.dataset import read_index
 from synthleak.evaluate.defense_online import online_policy
 from synthleak.executors import Executor, LocalExecutor
 from synthleak.localize.defense import DefensePolicy
-from synthleak.study.paths import StudyPaths, load_index
+from synthleak.study.paths import StudyPaths
 
 
 @dataclass
@@ -57,7 +58,7 @@ class StudyContext:
 
     def rooms(self) -> list[dict[str, Any]]:
         """The rooms' ``index.json`` entries."""
-        return load_index(self.paths.scene_dataset)["rooms"]
+        return read_index(self.paths.scene_dataset / "stages")["rooms"]
 
     def servers(self) -> dict[tuple[str, str], Path]:
         """The map of every (tier, room) server: tiers in config order, rooms in index order."""

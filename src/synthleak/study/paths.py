@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 
 @dataclass(frozen=True)
@@ -112,12 +110,3 @@ class StudyPaths:
         """The folder of one sweep point: a whole study, or (``attacker_only``) attackers against this study's
         rooms."""
         return StudyPaths(self.root / "sweep" / name, self if attacker_only else None)
-
-
-def load_index(dataset: Path) -> dict[str, Any]:
-    """The study plan written with the stages (rooms, attacker objects, presence)."""
-    path = dataset / "stages" / "index.json"
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError as exc:
-        raise FileNotFoundError(f"{path}: missing study index (run the render stage first)") from exc

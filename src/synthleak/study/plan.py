@@ -4,9 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from synthleak.render.dataset import load_sequence
+from synthleak.core.dataset import load_sequence, read_index
 from synthleak.study.context import StudyContext
-from synthleak.study.paths import load_index
 
 
 def query_plan(ctx: StudyContext, room: str) -> list[dict]:
@@ -21,7 +20,7 @@ def query_plan(ctx: StudyContext, room: str) -> list[dict]:
         plan += [{"sequence": f"scenes/{room}", "frame": f, "genuine": True, "attacker_object": None}
                  | ({"closeup": f in closeups} if closeups else {}) for f in scene.split["query"]]
     per_object = ctx.config.attack.queries_per_object
-    for obj in load_index(ctx.paths.dataset)["attacker_objects"]:
+    for obj in read_index(ctx.paths.dataset / "stages")["attacker_objects"]:
         seq = load_sequence(ctx.paths.attacker(obj["id"]))
         frames = seq.frames
         if 0 < per_object < len(frames):  # spread evenly around the orbit

@@ -11,6 +11,7 @@ from synthleak.atomic_io import atomic_write_text
 from synthleak.attack.local_poses import sfm_model
 from synthleak.cache import cache_key, is_done
 from synthleak.config import config_to_dict
+from synthleak.core.dataset import load_sequence, read_index
 from synthleak.evaluate.defense_online import holds_decisions, report_section
 from synthleak.evaluate.defense_sweep import defense_tradeoff
 from synthleak.evaluate.genuine import genuine_localization
@@ -20,10 +21,8 @@ from synthleak.evaluate.room_plots import room_plots
 from synthleak.evaluate.study_report import report_markdown, side_by_side_sections, sweep_section, world_sweep_section
 from synthleak.evaluate.tables import presence_pr_per_room
 from synthleak.evaluate.world_summary import world_summary
-from synthleak.render.dataset import load_sequence
 from synthleak.study.attack import attack_rows
 from synthleak.study.context import Stage, StudyContext, Unit
-from synthleak.study.paths import load_index
 
 
 class ReportStage(Stage):
@@ -51,7 +50,7 @@ def write_report(ctx: StudyContext, rows: list[dict[str, Any]], sweep_rows: list
     """Write ``report.md`` (and what it shows) from the attack's rows and the sweeps' rows."""
     config, paths, logs = ctx.config, ctx.paths, ctx.logs()
     paths.plots.mkdir(parents=True, exist_ok=True)
-    index = load_index(paths.dataset)
+    index = read_index(paths.dataset / "stages")
     scenes = {room["name"]: paths.scene(room["name"]) for room in index["rooms"]}
     world = world_summary(config, index["rooms"], scenes)
     atomic_write_text(paths.results / "world.json", json.dumps(world, indent=1))
@@ -80,7 +79,7 @@ def _side_by_side(ctx: StudyContext, rows: list[dict[str, Any]], logs: dict[tupl
     oracle = attack_rows(dataclasses.replace(config, attack=dataclasses.replace(config.attack, local_model="oracle")),
                          paths, logs)
     models = {o["id"]: sfm_model(load_sequence(paths.attacker(o["id"])), paths.sfm_dir(o["id"]), config.seed)
-              for o in load_index(paths.dataset)["attacker_objects"]}
+              for o in read_index(paths.dataset / "stages")["attacker_objects"]}
     return side_by_side_sections(config, rows, oracle, models)
 
 

@@ -10,6 +10,7 @@ from typing import Any
 
 from synthleak.cache import cache_key
 from synthleak.config import SweepConfig
+from synthleak.core.dataset import read_index
 from synthleak.evaluate.tables import write_results
 from synthleak.render.pipeline import SequenceJob, render_sequences
 from synthleak.scene.generate import write_study_stages
@@ -18,7 +19,6 @@ from synthleak.study.context import Stage, StudyContext, Unit
 from synthleak.study.features import FeaturesStage
 from synthleak.study.maps import MapsStage
 from synthleak.study.options import SWEEP_KINDS
-from synthleak.study.paths import load_index
 from synthleak.study.queries import QueriesStage
 from synthleak.study.render import RenderStage
 
@@ -44,7 +44,7 @@ class AttackerRenderStage(Stage):
         write_study_stages(ctx.config, stages, attacker_magnitude=self.magnitude, attacker_kinds=self.kinds,
                            progress=ctx.progress)
         jobs = [SequenceJob(stages / obj["stage"], ctx.paths.attacker(obj["id"]), "attacker")
-                for obj in load_index(ctx.paths.dataset)["attacker_objects"]]
+                for obj in read_index(ctx.paths.dataset / "stages")["attacker_objects"]]
         render_sequences(jobs, ctx.config, ctx.executor, ctx.progress)
 
 
