@@ -7,24 +7,35 @@
     synthleak.localize.client.HttpLocalizer(url).localize(...)         # same interface over HTTP
 """
 
-import pycolmap as _pycolmap
+from __future__ import annotations
 
-from synthleak.localize.defense import DefenseDecision, DefensePolicy, decide
-from synthleak.localize.localizer import LocalizationResult, Localizer
-from synthleak.localize.mapping import build_map
-from synthleak.localize.tiers import TIERS, Tier, get_tier
+import importlib
+from typing import Any
+
+import pycolmap as _pycolmap
 
 # COLMAP logs an INFO line per feature extractor it creates (one per query): keep warnings and errors only.
 _pycolmap.logging.minloglevel = max(int(_pycolmap.logging.minloglevel), int(_pycolmap.logging.WARNING))
 
-__all__ = [
-    "TIERS",
-    "DefenseDecision",
-    "DefensePolicy",
-    "LocalizationResult",
-    "Localizer",
-    "Tier",
-    "build_map",
-    "decide",
-    "get_tier",
-]
+_EXPORTS = {
+    "DefenseDecision": "defense", "DefensePolicy": "defense", "decide": "defense",
+    "LocalizationResult": "localizer", "Localizer": "localizer",
+    "build_map": "mapping",
+    "TIERS": "tiers", "Tier": "tiers", "get_tier": "tiers",
+}
+"""Public name -> its module, imported on first use: the tier registry (read by config validation) and the
+torch-based ``deep`` module import this package without pulling in the localizer and its config types."""
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+    globals()[name] = value  # looked up once
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

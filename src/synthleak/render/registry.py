@@ -5,13 +5,16 @@ renderer`` in a config is checked against these names; ``docs/ARCHITECTURE.md``)
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
-from synthleak.config import RenderConfig
 from synthleak.errors import SynthleakError
 from synthleak.plugins import resolve
 from synthleak.render.base import Renderer
 
-RendererFactory = Callable[[RenderConfig], Renderer]
+if TYPE_CHECKING:  # config validation reads this registry: no import of config at run time
+    from synthleak.config import RenderConfig
+
+RendererFactory = Callable[["RenderConfig"], Renderer]
 
 INTEGRATORS = ("direct", "path")
 """``render.integrator``: direct lighting only, or a path tracer of ``max_depth`` (mitsuba, Blender)."""
