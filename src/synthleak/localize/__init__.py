@@ -9,10 +9,9 @@
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
-
 import pycolmap as _pycolmap
+
+from synthleak.plugins import lazy_exports
 
 # COLMAP logs an INFO line per feature extractor it creates (one per query): keep warnings and errors only.
 _pycolmap.logging.minloglevel = max(int(_pycolmap.logging.minloglevel), int(_pycolmap.logging.WARNING))
@@ -29,13 +28,4 @@ torch-based ``deep`` module import this package without pulling in the localizer
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-    globals()[name] = value  # looked up once
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

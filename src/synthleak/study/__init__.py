@@ -11,8 +11,7 @@ The public API below is imported from its module on first use: every config load
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from synthleak.plugins import lazy_exports
 
 _EXPORTS = {
     "run_study": "run", "STAGES": "run", "STAGE_TYPES": "run", "check_force": "run", "study_stages": "run",
@@ -31,14 +30,4 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    module = _EXPORTS[name]
-    value = getattr(importlib.import_module(module if "." in module else f"{__name__}.{module}"), name)
-    globals()[name] = value  # looked up once
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
