@@ -1,8 +1,8 @@
 """Attack a finished study again with other aligners / local models, on its query logs, and print them side by side.
 
 Usage:
-    python benchmarks/attack_variants.py STUDY_DIR CONFIG [--aligners alg1,robust,pivot] [--local-model oracle|sfm]
-                                         [--compare-oracle] [--rebuild-sfm]
+    python benchmarks/attack_variants.py STUDY_DIR CONFIG [--aligners alg1,robust,pivot,upright]
+                                         [--local-model oracle|sfm] [--compare-oracle] [--rebuild-sfm]
 
 Reads ``STUDY_DIR`` (dataset, maps, queries; nothing is written there except SfM models under
 ``STUDY_DIR/sfm`` with ``--local-model sfm``). Prints, per tier and threshold pair and pooled over the threshold
@@ -31,7 +31,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("study", type=Path)
     parser.add_argument("config")
-    parser.add_argument("--aligners", default="alg1,robust,pivot")
+    parser.add_argument("--aligners", default="alg1,robust,pivot,upright")
     parser.add_argument("--local-model", default="oracle", choices=["oracle", "sfm"])
     parser.add_argument("--compare-oracle", action="store_true")
     parser.add_argument("--rebuild-sfm", action="store_true")

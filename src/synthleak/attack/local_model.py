@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from synthleak.attack.align import umeyama
+from synthleak.attack.gravity import up_from_cameras
 from synthleak.core.dataset import load_sequence
 from synthleak.geometry.poses import camera_centre, rotation_error_deg
 
@@ -81,17 +82,6 @@ def scene_from_object_estimate(scene_from_local: np.ndarray, object_from_local: 
     """Scoring helper: the attack's ``scene_from_local`` re-expressed for the object frame (a similarity)."""
     local_from_object = np.linalg.inv(np.asarray(object_from_local, dtype=np.float64))
     return np.asarray(scene_from_local, dtype=np.float64) @ local_from_object
-
-
-def up_from_cameras(cam_from_x: dict[str, np.ndarray] | np.ndarray) -> np.ndarray:
-    """The up direction of frame x from hand-held, upright photos: the unit vector normal to every camera's
-    image x axis (least squares: the smallest eigenvector of ``Σ x_i x_iᵀ``), signed along the image up (-y)
-    axes. Needs cameras whose viewing directions differ in azimuth (an orbit)."""
-    poses = np.asarray(list(cam_from_x.values()) if isinstance(cam_from_x, dict) else cam_from_x, dtype=np.float64)
-    x_axes, y_axes = poses[:, 0, :3], poses[:, 1, :3]
-    _, vecs = np.linalg.eigh(x_axes.T @ x_axes)
-    up = vecs[:, 0]
-    return up if float(np.sum(-y_axes @ up)) >= 0 else -up
 
 
 def metric_scale_from_points(points: np.ndarray, object_extents: np.ndarray, k: int = 8,

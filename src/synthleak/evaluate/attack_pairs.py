@@ -63,7 +63,8 @@ def object_rows(attack: Any, obj: Mapping[str, Any], target: Any, local: Mapping
                 object_from_local: np.ndarray | None, records: Mapping[tuple[str, str], list[dict[str, Any]]],
                 rooms: Mapping[str, Mapping[str, Any]], room_objects: Mapping[str, Mapping[int, Any]],
                 servers: Mapping[tuple[str, str], ServerLabels], magnitude: float | None = None,
-                kind: str | None = None) -> list[dict[str, Any]]:
+                kind: str | None = None, ups: Mapping[tuple[str, str], tuple[Any, Any]] | None = None
+                ) -> list[dict[str, Any]]:
     """The rows of one attacker object (``obj``: its ``index.json`` entry; ``target``: its instance) against
     every server of ``records`` ((tier, room) -> the object's logged queries), before the presence decision.
 
@@ -85,7 +86,8 @@ def object_rows(attack: Any, obj: Mapping[str, Any], target: Any, local: Mapping
                                lookalike_ids(obj, rooms[room]), labels.visible)
         kind_of_pair = None if gt is not None else absent_kind(obj, rooms[room])
         for aligner in attack.aligners:
-            alignments = [run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(local_sent))
+            alignments = [run_attack(local_sent, server, aligner, delta_r, delta_t, n_sent=len(local_sent),
+                                     ups=(ups or {}).get((tier, room)))
                           for delta_r, delta_t in attack.thresholds]
             features = attack_features(local_sent, server, alignments, attack.thresholds)
             for (delta_r, delta_t), alignment, trial in zip(attack.thresholds, alignments, features, strict=True):

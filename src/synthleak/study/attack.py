@@ -5,6 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from synthleak.attack.gravity import scene_ups, up_from_cameras
 from synthleak.attack.local_poses import attacker_local_poses
 from synthleak.cache import cache_key, done_key
 from synthleak.config import StudyConfig
@@ -32,16 +35,38 @@ def attack_rows(config: StudyConfig, paths: StudyPaths, logs: dict[tuple[str, st
             q = without_defense(q) if undefended else q
             by_object.setdefault(name, {}).setdefault(q["attacker_object"], []).append(q)
     servers = {name: ServerLabels.read(paths.map_dir(*name)) for name in logs}
-    rows: list[dict[str, Any]] = []
+    objects = []
     for obj in read_index(paths.dataset / "stages")["attacker_objects"]:
         seq = load_sequence(paths.attacker(obj["id"]))
         local, object_from_local = attacker_local_poses(config.attack.local_model, seq, paths.sfm_dir(obj["id"]),
                                                         config.seed)
-        target = seq.objects_by_id()[seq.target_instance_id]
+        objects.append((obj, seq.objects_by_id()[seq.target_instance_id], local, object_from_local))
+    ups = attacker_ups(config, objects, by_object)
+    rows: list[dict[str, Any]] = []
+    for obj, target, local, object_from_local in objects:
         records = {name: by_object.get(name, {}).get(obj["id"], []) for name in logs}
         rows += object_rows(config.attack, obj, target, local, object_from_local, records, rooms, room_objects,
-                            servers, magnitude, kind)
+                            servers, magnitude, kind, ups.get(obj["id"]))
     return apply_presence_decisions(rows, config.attack.presence)
+
+
+def attacker_ups(config: StudyConfig, objects: list[tuple[Any, Any, dict[str, Any], Any]],
+                 by_object: dict[tuple[str, str], dict[str, list[dict]]]
+                 ) -> dict[str, dict[tuple[str, str], tuple[Any, Any]]]:
+    """Per attacked object and server, the (local, scene) up directions the ``upright`` aligner needs, from the
+    attacker's data alone (:mod:`synthleak.attack.gravity`; the scene's from Alg. 1 at the tightest thresholds);
+    empty when no configured aligner takes them."""
+    if "upright" not in config.attack.aligners:
+        return {}
+    local_by_object = {obj["id"]: local for obj, _, local, _ in objects}
+    answers = {name: {obj: {q["frame"]: None if not q["success"] or q["cam_from_world"] is None
+                            else np.array(q["cam_from_world"]) for q in queries}
+                      for obj, queries in per_object.items() if obj is not None}
+               for name, per_object in by_object.items()}
+    delta_r, delta_t = min(config.attack.thresholds)
+    scene = scene_ups(local_by_object, answers, delta_r, delta_t)
+    return {obj: {name: (up_from_cameras(local), up) for name, up in scene.items()}
+            for obj, local in local_by_object.items() if len(local) >= 2}
 
 
 class AttackStage(Stage):
