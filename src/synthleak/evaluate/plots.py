@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Polygon, Rectangle
 from scipy.spatial import ConvexHull
 
@@ -91,29 +92,30 @@ def _cdf(ax, values: np.ndarray, label: str, colour: str, style: str) -> None:
 
 
 def plot_placement_cdfs(rows: Sequence[dict], out: str | Path) -> Path:
-    """CDFs of rotation and translation errors of GT-present pairs, a line per tier x aligner (x thresholds).
+    """CDFs of rotation and translation errors of GT-present pairs at the tightest alignment thresholds, a line
+    per tier (colour) x aligner (line style); the other threshold pairs are in the report's tables.
 
     Pairs without an estimate count as infinite error (the curve never reaches 1 then).
     """
     present = [r for r in rows if r["present_gt"]]
-    keys = _sorted((r["tier"], r["aligner"], r["delta_r_deg"], r["delta_t_m"]) for r in present)
+    thresholds = _sorted((r["delta_r_deg"], r["delta_t_m"]) for r in present)
+    present = [r for r in present if thresholds and (r["delta_r_deg"], r["delta_t_m"]) == thresholds[0]]
+    keys = _sorted((r["tier"], r["aligner"]) for r in present)
     tiers = _sorted(k[0] for k in keys)
     aligners = _sorted(k[1] for k in keys)
-    n_thr = len({k[2:] for k in keys})
-    fig = Figure(figsize=(10, 3.8), layout="constrained")
+    fig = Figure(figsize=(11, 3.8), layout="constrained")
     ax_r, ax_t = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
     styles = ["-", "--", ":", "-."]
     for key in keys:
-        group = [r for r in present if (r["tier"], r["aligner"], r["delta_r_deg"], r["delta_t_m"]) == key]
+        group = [r for r in present if (r["tier"], r["aligner"]) == key]
         rot = np.array([np.inf if r.get("rot_err_deg") is None or math.isnan(r["rot_err_deg"])
                         else r["rot_err_deg"] for r in group])
         trans = np.array([np.inf if r.get("trans_err_m") is None or math.isnan(r["trans_err_m"])
                           else r["trans_err_m"] for r in group])
-        label = f"{key[0]} {key[1]}" + (f" {key[2]:g}°/{key[3]:g}m" if n_thr > 1 else "")
         colour = _colour(tiers.index(key[0]))
         style = styles[aligners.index(key[1]) % len(styles)]
-        _cdf(ax_r, rot, label, colour, style)
-        _cdf(ax_t, trans, label, colour, style)
+        _cdf(ax_r, rot, f"{key[0]} {key[1]}", colour, style)
+        _cdf(ax_t, trans, f"{key[0]} {key[1]}", colour, style)
     ax_r.set_xscale("symlog", linthresh=1.0)
     ax_t.set_xscale("symlog", linthresh=0.01)
     ax_r.set_xlabel("rotation error (deg, symmetry-aware)")
@@ -123,7 +125,12 @@ def plot_placement_cdfs(rows: Sequence[dict], out: str | Path) -> Path:
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
     if keys:
-        ax_t.legend(fontsize=6, loc="lower right")
+        fig.suptitle(f"placement of GT-present pairs, aligned at {thresholds[0][0]:g}°/{thresholds[0][1]:g} m",
+                     fontsize=9)
+        handles = [Line2D([], [], color=_colour(k), label=tier) for k, tier in enumerate(tiers)]
+        handles += [Line2D([], [], color="black", linestyle=styles[k % len(styles)], label=aligner)
+                    for k, aligner in enumerate(aligners)]
+        fig.legend(handles=handles, loc="outside right upper", fontsize=7)
     return _save(fig, out)
 
 
