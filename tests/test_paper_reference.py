@@ -36,3 +36,9 @@ def test_tier_ordering_counts_decisions_and_queries():
     assert by_tier["xfeat"]["paper_analogue"] == "R2D2+NN"
     text = tier_ordering_markdown(rows)
     assert "`xfeat` (1.00) > `sift` (0.50)" in text and "higher recall than `sift` here: `xfeat`" in text
+
+
+def test_the_tier_ordering_names_the_presence_rule_of_the_decision_column() -> None:
+    rows = [_row("sift", "r0", "a", True, True, 4)]
+    assert "ε rule, pooled over rooms" in tier_ordering_markdown(rows)
+    assert "presence classifier, pooled over rooms" in tier_ordering_markdown(rows, presence="classifier")

@@ -75,8 +75,13 @@ def _localized(rows: Sequence[dict], present: bool) -> str:
     return f"{sum(int(r['n_localized']) for r in chosen)}/{sum(int(r['n_queries']) for r in chosen)}"
 
 
-def tier_ordering_markdown(rows: Sequence[dict], aligner: str = "alg1") -> str:
-    """The paper's tier ordering (mean of Table 1 over its scenes) beside this study's, with a one-line verdict."""
+PRESENCE_RULES = {"eps": "ε rule", "classifier": "presence classifier"}
+"""How the report names each ``[attack] presence`` rule."""
+
+
+def tier_ordering_markdown(rows: Sequence[dict], aligner: str = "alg1", presence: str = "eps") -> str:
+    """The paper's tier ordering (mean of Table 1 over its scenes) beside this study's, with a one-line verdict;
+    ``presence``: the rule behind the rows' ``decision`` column (``[attack] presence``)."""
     paper = paper_means()
     first = PAPER_THRESHOLDS[0]
     paper_rows = []
@@ -103,7 +108,8 @@ def tier_ordering_markdown(rows: Sequence[dict], aligner: str = "alg1") -> str:
         verdict = "This study ran no learned tier beside `sift`: the paper's ordering is not tested."
     return "\n".join([
         f"Recall at {first[0]:g}°, {first[1]:g} m, paper (Table 1, mean over its 7 scenes): {paper_order}.",
-        f"This study (aligner `{aligner}`, ε rule, pooled over rooms): {ours_order}. {verdict}\n",
+        f"This study (aligner `{aligner}`, {PRESENCE_RULES.get(presence, presence)}, pooled over rooms): "
+        f"{ours_order}. {verdict}\n",
         markdown_table(paper_rows, ["tier", *columns], 2),
         markdown_table(ours, ["tier", "paper_analogue", *[c for c in columns if any(c in r for r in ours)],
                               "queries_present", "queries_absent"], 2),

@@ -9,7 +9,7 @@ from typing import Any
 
 from synthleak.evaluate.absent_pairs import absent_funnel_markdown, presence_by_absent_kind_markdown
 from synthleak.evaluate.compare import side_by_side_markdown
-from synthleak.evaluate.paper_reference import tier_ordering_markdown
+from synthleak.evaluate.paper_reference import PRESENCE_RULES, tier_ordering_markdown
 from synthleak.evaluate.plots import leakage_vs_magnitude, plot_leakage_vs_magnitude, plot_leakage_vs_world
 from synthleak.evaluate.sfm_summary import sfm_objects_markdown
 from synthleak.evaluate.tables import (
@@ -97,7 +97,8 @@ def report_markdown(config: Any, index: Mapping[str, Any], world: Mapping[str, A
         f"{n_present} present (room, object) pairs of {len(index['rooms']) * len(index['attacker_objects'])}; "
         f"renderer {config.render.renderer} {config.render.width}x{config.render.height}; "
         f"tiers {', '.join(config.localize.tiers)}; aligners {', '.join(config.attack.aligners)}; "
-        f"local model {config.attack.local_model}.\n",
+        f"local model {config.attack.local_model}; presence decided by the "
+        f"{PRESENCE_RULES.get(config.attack.presence, config.attack.presence)} (`decision`).\n",
         *world_markdown(world),
         "## Genuine queries (held-out frames: walk-through and close-ups)\n",
         markdown_table(genuine, ["tier", "room", "n", "localized", "closeups", "closeups_localized",
@@ -105,7 +106,7 @@ def report_markdown(config: Any, index: Mapping[str, Any], world: Mapping[str, A
         "## Presence (paper Table 1 shape)\n",
         table1_markdown(rows),
         "## Tier ordering beside the paper's (Table 1)\n",
-        tier_ordering_markdown(rows),
+        tier_ordering_markdown(rows, presence=config.attack.presence),
         "## Presence per object (paper appendix table shape)\n",
         table2_markdown(rows),
         "## Where presence is lost (GT-present pairs, server side)\n",
