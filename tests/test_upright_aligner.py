@@ -10,8 +10,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from synthleak.attack.align import align_alg1, align_pivot, align_upright, get_aligner
-from synthleak.attack.gravity import scene_up_from_placements, scene_ups, up_from_cameras
-from synthleak.attack.run import run_attack
+from synthleak.attack.gravity import local_ups, scene_up_from_placements, scene_ups, up_from_cameras
+from synthleak.attack.run import run_attack, takes_up_directions
 from synthleak.geometry.poses import invert, look_at, make_pose
 from synthleak.seeding import make_rng
 
@@ -98,6 +98,7 @@ def test_run_attack_gives_the_up_directions_only_to_aligners_that_take_them() ->
     local_poses, server_poses = dict(zip(names, local, strict=True)), dict(zip(names, server, strict=True))
     with_up = run_attack(local_poses, server_poses, "upright", 10.0, 0.25, n_sent=12, ups=(UP, UP))
     assert with_up.extra["gravity"] and placed_right(with_up.scene_from_object)
+    assert takes_up_directions("upright") and not takes_up_directions("alg1")
     alg1 = run_attack(local_poses, server_poses, "alg1", 10.0, 0.25, n_sent=12, ups=(UP, UP))  # ignored there
     assert alg1.eps == get_aligner("alg1")(local, server, 10.0, 0.25, n_total=12).eps
 
@@ -117,9 +118,9 @@ def test_scene_ups_come_from_the_attackers_answers() -> None:
     names = [f"{k:06d}.png" for k in range(len(local))]
     truth = {n: pose @ invert(SCENE_FROM_OBJECT) for n, pose in zip(names, local, strict=True)}
     answers = {("sift", "room_000"): {"chair": truth, "lamp": {names[0]: truth[names[0]], names[1]: None}}}
-    ups = scene_ups({"chair": dict(zip(names, local, strict=True)), "lamp": dict(zip(names, local, strict=True))},
-                    answers, 10.0, 0.25)
+    local_by_object = {"chair": dict(zip(names, local, strict=True)), "lamp": dict(zip(names, local, strict=True))}
+    ups = scene_ups(local_by_object, local_ups(local_by_object), answers, 10.0, 0.25)
     assert np.degrees(np.arccos(ups[("sift", "room_000")] @ UP)) < 2.0
-    assert scene_ups({"lamp": dict(zip(names, local, strict=True))},
-                     {("sift", "room_000"): {"lamp": {names[0]: truth[names[0]]}}}, 10.0, 0.25) == {
-        ("sift", "room_000"): None}
+    lamp = {"lamp": local_by_object["lamp"]}
+    assert scene_ups(lamp, local_ups(lamp), {("sift", "room_000"): {"lamp": {names[0]: truth[names[0]]}}},
+                     10.0, 0.25) == {("sift", "room_000"): None}

@@ -517,19 +517,21 @@ def align_pivot(
     if not reference.ok or inl.size < 2:
         return Alignment(reference.scene_from_object, 1.0, inl, reference.eps, n_total, reference.n_localized,
                          reference.hypothesis, "pivot")
-    rot, trans, w = _pivot_refine(local[inl], server[inl], reference.scene_from_object, swing_ratio, depth_ratio,
-                                  scale_r_deg, scale_t_m, iterations)
+    pivot = look_at_point(local[inl])
+    rot, trans, w = _pivot_refine(local[inl], server[inl], reference.scene_from_object, pivot, swing_ratio=swing_ratio,
+                                  depth_ratio=depth_ratio, scale_r_deg=scale_r_deg, scale_t_m=scale_t_m,
+                                  iterations=iterations)
     return Alignment(_similarity(rot, trans), 1.0, inl, reference.eps, n_total, reference.n_localized,
-                     reference.hypothesis, "pivot", {"pivot_object": look_at_point(local[inl]).tolist(),
-                                                     "weights": w.tolist()})
+                     reference.hypothesis, "pivot", {"pivot_object": pivot.tolist(), "weights": w.tolist()})
 
 
-def _pivot_refine(loc: np.ndarray, srv: np.ndarray, start: np.ndarray, swing_ratio: float, depth_ratio: float,
-                  scale_r_deg: float, scale_t_m: float, iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _pivot_refine(loc: np.ndarray, srv: np.ndarray, start: np.ndarray, pivot: np.ndarray, *,
+                  swing_ratio: float = 2.0, depth_ratio: float = 3.0, scale_r_deg: float = 10.0,
+                  scale_t_m: float = 0.25, iterations: int = 20) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`align_pivot`'s re-estimate over a consensus set (``loc``/``srv``: its pairs, >= 2) from the pose
-    ``start``: rotation, translation and the final weights."""
+    ``start``, placing ``pivot`` (:func:`look_at_point` of ``loc``); the defaults are ``align_pivot``'s. Returns
+    rotation, translation and the final weights."""
     hyp_r, hyp_t = _per_image_hypotheses(loc, srv)
-    pivot = look_at_point(loc)
     placed = np.einsum("nij,j->ni", hyp_r, pivot) + hyp_t  # the pivot in the scene, per image
     srv_rot, loc_rot = srv[:, :3, :3], loc[:, :3, :3]
     lam_r = np.diag([1.0 / swing_ratio**2, 1.0 / swing_ratio**2, 1.0])
@@ -625,7 +627,7 @@ def align_upright(
             best, best_i, best_key = inl, int(i), key
     start = _similarity(chordal_mean(hyp_r[best]), hyp_t[best].mean(axis=0))
     if best.size >= 2:
-        rot, trans, _ = _pivot_refine(local[best], server[best], start, 2.0, 3.0, 10.0, 0.25, 20)
+        rot, trans, _ = _pivot_refine(local[best], server[best], start, look_at_point(local[best]))
         start = _similarity(rot, trans)
     return Alignment(start, 1.0, best, best.size / n_total, n_total, n, best_i, "upright", extra)
 

@@ -39,25 +39,30 @@ def scene_up_from_placements(placements: Iterable[tuple[int, np.ndarray]], min_i
     return total / norm if norm > 1e-9 else None
 
 
-def scene_ups(local_by_object: Mapping[str, Mapping[str, np.ndarray]],
+def local_ups(local_by_object: Mapping[str, Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """:func:`up_from_cameras` of each attacked object's local poses (objects with fewer than 2 left out)."""
+    return {obj: up_from_cameras(poses) for obj, poses in local_by_object.items() if len(poses) >= 2}
+
+
+def scene_ups(local_by_object: Mapping[str, Mapping[str, np.ndarray]], local_up: Mapping[str, np.ndarray],
               answers: Mapping[tuple[str, str], Mapping[str, Mapping[str, np.ndarray | None]]],
               delta_r_deg: float, delta_t_m: float, min_inliers: int = 3) -> dict[tuple[str, str], np.ndarray | None]:
     """:func:`scene_up_from_placements` of every server: ``answers`` maps (tier, room) to each attacked object's
     answers (frame -> the server's ``cam_from_scene``, None where not localized); each object is placed with
-    Alg. 1 at (``delta_r_deg``, ``delta_t_m``) from its local poses ``local_by_object``."""
+    Alg. 1 at (``delta_r_deg``, ``delta_t_m``) from its local poses ``local_by_object`` and votes with its local
+    up direction ``local_up`` (:func:`local_ups`; objects without one do not vote)."""
     from synthleak.attack.run import run_attack
 
-    local_ups = {obj: up_from_cameras(poses) for obj, poses in local_by_object.items() if len(poses) >= 2}
     out: dict[tuple[str, str], np.ndarray | None] = {}
     for server, by_object in answers.items():
         votes = []
         for obj, frames in sorted(by_object.items()):
             local = local_by_object.get(obj, {})
-            if obj not in local_ups:
+            if obj not in local_up:
                 continue
             sent = {f: p for f, p in frames.items() if f in local and p is not None}
             alignment = run_attack(local, sent, "alg1", delta_r_deg, delta_t_m)
             if alignment.ok:
-                votes.append((alignment.inliers.size, alignment.scene_from_object[:3, :3] @ local_ups[obj]))
+                votes.append((alignment.inliers.size, alignment.scene_from_object[:3, :3] @ local_up[obj]))
         out[server] = scene_up_from_placements(votes, min_inliers)
     return out

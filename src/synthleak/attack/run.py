@@ -36,6 +36,11 @@ def run_attack(
     local = np.array([local_poses[n] for n in names], dtype=np.float64).reshape(-1, 4, 4)
     server = np.array([server_poses[n] for n in names], dtype=np.float64).reshape(-1, 4, 4)
     align = get_aligner(aligner)
-    if ups is not None and "scene_up" in inspect.signature(align).parameters:
+    if ups is not None and takes_up_directions(aligner):
         return align(local, server, delta_r_deg, delta_t_m, n_total=n_total, local_up=ups[0], scene_up=ups[1])
     return align(local, server, delta_r_deg, delta_t_m, n_total=n_total)
+
+
+def takes_up_directions(aligner: str) -> bool:
+    """Whether the registered aligner ``aligner`` takes the ``local_up`` / ``scene_up`` keywords (``upright``)."""
+    return "scene_up" in inspect.signature(get_aligner(aligner)).parameters

@@ -7,8 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from synthleak.attack.gravity import scene_ups, up_from_cameras
+from synthleak.attack.gravity import local_ups, scene_ups
 from synthleak.attack.local_poses import attacker_local_poses
+from synthleak.attack.run import takes_up_directions
 from synthleak.cache import cache_key, done_key
 from synthleak.config import StudyConfig
 from synthleak.core.dataset import load_sequence, read_index
@@ -56,17 +57,17 @@ def attacker_ups(config: StudyConfig, objects: list[tuple[Any, Any, dict[str, An
     """Per attacked object and server, the (local, scene) up directions the ``upright`` aligner needs, from the
     attacker's data alone (:mod:`synthleak.attack.gravity`; the scene's from Alg. 1 at the tightest thresholds);
     empty when no configured aligner takes them."""
-    if "upright" not in config.attack.aligners:
+    if not any(takes_up_directions(aligner) for aligner in config.attack.aligners):
         return {}
     local_by_object = {obj["id"]: local for obj, _, local, _ in objects}
+    local_up = local_ups(local_by_object)
     answers = {name: {obj: {q["frame"]: None if not q["success"] or q["cam_from_world"] is None
                             else np.array(q["cam_from_world"]) for q in queries}
                       for obj, queries in per_object.items() if obj is not None}
                for name, per_object in by_object.items()}
     delta_r, delta_t = min(config.attack.thresholds)
-    scene = scene_ups(local_by_object, answers, delta_r, delta_t)
-    return {obj: {name: (up_from_cameras(local), up) for name, up in scene.items()}
-            for obj, local in local_by_object.items() if len(local) >= 2}
+    scene = scene_ups(local_by_object, local_up, answers, delta_r, delta_t)
+    return {obj: {name: (up, scene_up) for name, scene_up in scene.items()} for obj, up in local_up.items()}
 
 
 class AttackStage(Stage):
