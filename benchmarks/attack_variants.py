@@ -19,9 +19,11 @@ import shutil
 import time
 from pathlib import Path
 
+from synthleak.attack.align import get_aligner
 from synthleak.attack.local_poses import sfm_model
 from synthleak.config import load_config
 from synthleak.core.dataset import load_sequence, read_index
+from synthleak.errors import SynthleakError
 from synthleak.evaluate.compare import side_by_side_markdown
 from synthleak.evaluate.sfm_summary import sfm_objects_markdown
 from synthleak.study import StudyPaths, attack_rows
@@ -37,10 +39,16 @@ def main() -> None:
     parser.add_argument("--rebuild-sfm", action="store_true")
     args = parser.parse_args()
     paths = StudyPaths(args.study)
-    config = load_config(args.config)
     aligners = args.aligners.split(",")
+    try:  # bad input: one line naming it, before any work
+        config = load_config(args.config)
+        for aligner in aligners:
+            get_aligner(aligner)
+        rooms = read_index(paths.dataset / "stages")["rooms"]
+    except (SynthleakError, ValueError) as exc:
+        parser.error(str(exc))
     logs = {(tier, room["name"]): paths.query_log(tier, room["name"])
-            for tier in config.localize.tiers for room in read_index(paths.dataset / "stages")["rooms"]}
+            for tier in config.localize.tiers for room in rooms}
     missing = [str(p) for p in logs.values() if not p.is_file()]
     if missing:
         raise SystemExit(f"{args.study}: no query logs for {missing[:3]} (run the study first)")
