@@ -147,6 +147,28 @@ def test_learned_float_descriptors_of_any_dimension(dim):
     assert all(np.array_equal(a[k], b[k]) for k in a)
 
 
+@pytest.mark.parametrize("binary", [False, True])
+def test_kmeans_pp_seeding_is_scipys_draw_for_draw(binary):
+    """The O(n k) seeding picks the rows scipy's ``kmeans2(minit="++")`` picks, leaves the generator in the
+    same state, and the trained centres are the same bytes (so maps built before it keep their bow.npz)."""
+    import warnings
+
+    from scipy.cluster.vq import kmeans2
+
+    from synthleak.localize.retrieval import _kmeans
+
+    data = np.random.default_rng(5).random((3000, 256 if binary else 128)).astype(np.float32)
+    if binary:
+        data = (data > 0.5).astype(np.float32)  # ORB/AKAZE descriptors are clustered as 0/1 bits
+    ours, theirs = np.random.default_rng(11), np.random.default_rng(11)
+    centres = _kmeans(data, 32, 10, ours)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        expected, _ = kmeans2(data.astype(np.float64), 32, iter=10, minit="++", rng=theirs)
+    np.testing.assert_array_equal(centres, expected.astype(np.float32))
+    assert ours.uniform() == theirs.uniform()
+
+
 def test_bad_bow_parameters_are_named():
     with pytest.raises(ValueError, match="scoring"):
         BowParams(scoring="cosine")

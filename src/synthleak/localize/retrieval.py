@@ -16,6 +16,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 from scipy.cluster.vq import kmeans2
+from scipy.spatial.distance import cdist
 
 from synthleak.localize.features import Features
 from synthleak.localize.matching import squared_l2
@@ -72,10 +73,29 @@ def _kmeans(data: np.ndarray, k: int, iterations: int, rng: np.random.Generator)
     """``k`` centres (k-means++ seeded); fewer points than ``k``: the points, the last one repeated."""
     if len(data) <= k:
         return np.concatenate([data, np.repeat(data[-1:], k - len(data), axis=0)]).astype(np.float32)
+    data = data.astype(np.float64)
     with warnings.catch_warnings():  # an empty cluster is just an unused word
         warnings.filterwarnings("ignore", message="One of the clusters is empty")
-        centres, _ = kmeans2(data.astype(np.float64), k, iter=iterations, minit="++", rng=rng)
+        centres, _ = kmeans2(data, kmeans_pp_seeds(data, k, rng), iter=iterations, minit="matrix")
     return centres.astype(np.float32)
+
+
+def kmeans_pp_seeds(data: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
+    """k-means++ seeding (Arthur & Vassilvitskii 2007) of float64 ``data``: the same draws and the same centres,
+    byte for byte, as ``scipy.cluster.vq.kmeans2(..., minit="++")``, in O(n k) instead of O(n k^2).
+
+    scipy recomputes every point's distance to all centres chosen so far for each new centre (95 % of a
+    4,096-word tree's training time); here each point's nearest squared distance is kept and lowered with the
+    newest centre only. ``cdist`` computes each distance exactly as scipy's does and a minimum is exact, so
+    the probabilities, the uniform draws and the chosen rows are the same."""
+    seeds = np.empty((k, data.shape[1]))
+    seeds[0] = data[rng.integers(len(data), dtype="int64")]
+    nearest = cdist(seeds[:1], data, metric="sqeuclidean")[0]
+    for i in range(1, k):
+        cumulative = (nearest / nearest.sum()).cumsum()
+        seeds[i] = data[int(np.searchsorted(cumulative, rng.uniform()))]
+        np.minimum(nearest, cdist(seeds[i:i + 1], data, metric="sqeuclidean")[0], out=nearest)
+    return seeds
 
 
 class VocabularyTree:
