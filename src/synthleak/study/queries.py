@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,6 +43,8 @@ class QueryTask:
     ``_features`` (its cached features; matched in process)."""
     defense: Any = None
     """The enabled :class:`~synthleak.localize.defense.DefensePolicy` the in-process server applies, or None."""
+    part_file: Path | None = None
+    """Where the task writes its lines when it is done (a stopped stage keeps them and resumes after them)."""
 
 
 def query_task(task: QueryTask) -> list[str]:
@@ -62,7 +65,19 @@ def query_task(task: QueryTask) -> list[str]:
         else:
             result = localizer.localize(Path(entry["_image"]).read_bytes(), camera)
         lines.append(query_line(entry, task.tier, task.room, result, task.defense, remote=bool(task.server_url)))
+    if task.part_file is not None:
+        atomic_write_text(task.part_file, "".join(line + "\n" for line in lines))
     return lines
+
+
+def parts_dir(unit: Unit) -> Path:
+    """Where a server's finished tasks keep their lines until its whole log is written (one folder per key,
+    so parts made from other inputs are never read)."""
+    return unit.folder / f".parts-{unit.key[:16]}"
+
+
+def _read_part(path: Path) -> list[str]:
+    return path.read_text().splitlines()
 
 
 class QueriesStage(Stage):
@@ -70,7 +85,11 @@ class QueriesStage(Stage):
 
     In process, each image's cached features (the features stage) are matched against every room's map; with
     ``[defense] enabled`` the in-process server applies the policy to every query
-    (:mod:`synthleak.evaluate.defense_online`). With a server URL the images themselves are sent."""
+    (:mod:`synthleak.evaluate.defense_online`). With a server URL the images themselves are sent.
+
+    Each task of 50 queries writes its lines to the server's parts folder when it is done; a stage stopped
+    part way (Ctrl-C, a crash, a lost node) resumes after the finished tasks (``--force queries`` redoes them).
+    The log is written from the parts, in plan order, and the parts are then removed."""
 
     name = "queries"
 
@@ -85,21 +104,28 @@ class QueriesStage(Stage):
     def make(self, ctx: StudyContext, todo: list[Unit]) -> dict[tuple[str, str], Path]:
         """Returns every server's log (made now or before)."""
         plans = query_plans(ctx) if todo else {}
-        counts, tasks = [], []
+        part_files, tasks = [], []
         for unit in todo:
             tier, room = unit.item
+            folder = parts_dir(unit)
+            for stale in unit.folder.glob(".parts-*") if unit.folder.is_dir() else []:
+                if stale != folder or self.name in ctx.force:
+                    shutil.rmtree(stale)
+            folder.mkdir(parents=True, exist_ok=True)
             plan = [dict(item) for item in plans[room]]
             if ctx.server_url is None:
                 for item in plan:
                     item["_features"] = str(ctx.paths.features_file(tier, item["sequence"], item["frame"]))
                     del item["_image"]
-            parts = [QueryTask(ctx.paths.map_dir(tier, room), ctx.config.localize, ctx.server_url, tier, room, c,
-                               None if ctx.server_url else ctx.defense) for c in chunks(plan, QUERIES_PER_TASK)]
-            counts.append(len(parts))
-            tasks += parts
-        results = iter(ctx.executor.map(query_task, tasks, "queries", ctx.progress))
+            files = [folder / f"{i:05d}.jsonl" for i in range(len(chunks(plan, QUERIES_PER_TASK)))]
+            part_files.append(files)
+            tasks += [QueryTask(ctx.paths.map_dir(tier, room), ctx.config.localize, ctx.server_url, tier, room, c,
+                                None if ctx.server_url else ctx.defense, part)
+                      for c, part in zip(chunks(plan, QUERIES_PER_TASK), files, strict=True) if not part.is_file()]
+        ctx.executor.map(query_task, tasks, "queries", ctx.progress)
         clear_worker_cache()
-        for unit, n_tasks in zip(todo, counts, strict=True):
-            lines = [line for _ in range(n_tasks) for line in next(results)]
+        for unit, files in zip(todo, part_files, strict=True):
+            lines = [line for part in files for line in _read_part(part)]
             atomic_write_text(ctx.paths.query_log(*unit.item), "\n".join(lines) + "\n")
+            shutil.rmtree(parts_dir(unit))
         return ctx.logs()
