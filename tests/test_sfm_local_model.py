@@ -115,7 +115,8 @@ def test_study_with_sfm_leaves_out_and_counts_unregistered_views(ci_tiny_study, 
     shutil.copytree(ci_tiny_study, copy)
     config = load_config("ci-tiny")
     config = dataclasses.replace(config, attack=dataclasses.replace(config.attack, local_model="sfm"))
-    run_study(config, copy, progress=False)
+    run_study(config, copy, progress=False, workers=2)  # the sfm stage: one task per object in a process pool
+    assert "sfm" in json.loads((copy / "timings.json").read_text())
     rows = json.loads((copy / "results" / "results.json").read_text())
     assert any(r["n_no_local_pose"] > 0 for r in rows)
     for r in rows:
@@ -129,3 +130,12 @@ def test_study_with_sfm_leaves_out_and_counts_unregistered_views(ci_tiny_study, 
     assert "## Local model: SfM of the attacker's orbit" in report
     models = sorted((copy / "sfm").glob("*/model.json"))
     assert len(models) == len(read_index(copy / "dataset" / "stages")["attacker_objects"])
+
+    def without_seconds(path: Path) -> dict:
+        data = json.loads(path.read_text())
+        data["model"]["stats"].pop("seconds")
+        return data
+
+    pooled = {path: without_seconds(path) for path in models}
+    run_study(config, copy, force=["sfm"], progress=False)  # rebuilt in this process: the same models
+    assert all(without_seconds(path) == pooled[path] for path in models)

@@ -13,6 +13,7 @@ from synthleak.executors import Executor, make_executor
 from synthleak.study.attack import AttackStage
 from synthleak.study.context import Stage, StudyContext
 from synthleak.study.features import FeaturesStage
+from synthleak.study.local_models import SfmStage
 from synthleak.study.maps import MapsStage
 from synthleak.study.paths import StudyPaths
 from synthleak.study.queries import QueriesStage
@@ -21,8 +22,8 @@ from synthleak.study.report import ReportStage
 from synthleak.study.sweep import SweepStage, WorldSweepStage
 from synthleak.study.tiers import check_tiers_installed
 
-STAGE_TYPES: tuple[type[Stage], ...] = (RenderStage, MapsStage, FeaturesStage, QueriesStage, AttackStage, SweepStage,
-                                        WorldSweepStage, ReportStage)
+STAGE_TYPES: tuple[type[Stage], ...] = (RenderStage, MapsStage, FeaturesStage, SfmStage, QueriesStage, AttackStage,
+                                        SweepStage, WorldSweepStage, ReportStage)
 """A study's stages, in the order they run."""
 
 STAGES = tuple(stage.name for stage in STAGE_TYPES)
