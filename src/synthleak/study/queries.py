@@ -117,11 +117,12 @@ class QueriesStage(Stage):
                 for item in plan:
                     item["_features"] = str(ctx.paths.features_file(tier, item["sequence"], item["frame"]))
                     del item["_image"]
-            files = [folder / f"{i:05d}.jsonl" for i in range(len(chunks(plan, QUERIES_PER_TASK)))]
+            parts = chunks(plan, QUERIES_PER_TASK)
+            files = [folder / f"{i:05d}.jsonl" for i in range(len(parts))]
             part_files.append(files)
             tasks += [QueryTask(ctx.paths.map_dir(tier, room), ctx.config.localize, ctx.server_url, tier, room, c,
                                 None if ctx.server_url else ctx.defense, part)
-                      for c, part in zip(chunks(plan, QUERIES_PER_TASK), files, strict=True) if not part.is_file()]
+                      for c, part in zip(parts, files, strict=True) if not part.is_file()]
         ctx.executor.map(query_task, tasks, "queries", ctx.progress)
         clear_worker_cache()
         for unit, files in zip(todo, part_files, strict=True):
