@@ -17,6 +17,7 @@ from synthleak.scene.generate import write_study_stages
 from synthleak.study.attack import attack_rows
 from synthleak.study.context import Stage, StudyContext, Unit
 from synthleak.study.features import FeaturesStage
+from synthleak.study.local_models import SfmStage
 from synthleak.study.maps import MapsStage
 from synthleak.study.options import SWEEP_KINDS
 from synthleak.study.queries import QueriesStage
@@ -57,7 +58,8 @@ class SweepStage(Stage):
     name = "sweep"
 
     def make(self, ctx: StudyContext, todo: list[Unit]) -> list[dict[str, Any]]:
-        stages = [FeaturesStage(), QueriesStage()] if ctx.server_url is None else [QueriesStage()]
+        features = [FeaturesStage()] if ctx.server_url is None else []  # a remote server is sent the images
+        stages = [*features, SfmStage(), QueriesStage()]
         rows: list[dict[str, Any]] = []
         for kind in ctx.config.sweep.kinds:
             if kind not in SWEEP_KINDS:
@@ -90,7 +92,7 @@ class WorldSweepStage(Stage):
         if points and ctx.server_url:
             raise ValueError("sweep.material_sharing / sweep.clutter build a map per value: they need the "
                              "in-process server (drop --server)")
-        stages = [RenderStage(), MapsStage(), FeaturesStage(), QueriesStage()]
+        stages = [RenderStage(), MapsStage(), FeaturesStage(), SfmStage(), QueriesStage()]
         rows: list[dict[str, Any]] = []
         for param, value in points:
             sub = dataclasses.replace(config, scenes=dataclasses.replace(config.scenes, **{param: value}),
