@@ -24,6 +24,7 @@ import numpy as np
 from scipy.cluster.vq import kmeans2
 
 from synthleak.localize import retrieval
+from synthleak.localize.mapping import bow_features
 from synthleak.localize.retrieval import BowIndex, BowParams
 from synthleak.localize.store import read_map
 
@@ -33,9 +34,7 @@ def indexed_features(map_dir: Path) -> tuple[list, BowParams]:
     data = read_map(map_dir)
     with np.load(map_dir / "bow.npz") as stored:
         params = BowIndex.from_arrays(stored).params
-    with_points = [f.subset(np.nonzero(idx >= 0)[0]) for f, idx in zip(data.features, data.point_index, strict=True)]
-    use = with_points if params.points_only and any(len(f) for f in with_points) else data.features
-    return use, params
+    return bow_features(data.features, data.point_index, params), params
 
 
 def scipy_kmeans(data: np.ndarray, k: int, iterations: int, rng: np.random.Generator) -> np.ndarray:

@@ -155,9 +155,7 @@ def build_map(
         json.dumps({str(c): int(i) for c, i in zip(colmap_ids, instance, strict=True)})
     )
     bow = bow_params(config)
-    with_points = [f.subset(np.nonzero(idx >= 0)[0]) for f, idx in zip(features, point_index, strict=True)]
-    indexed = with_points if bow.points_only and any(len(f) for f in with_points) else features
-    np.savez(out_dir / "bow.npz", **BowIndex.build(indexed, bow).to_arrays())
+    np.savez(out_dir / "bow.npz", **BowIndex.build(bow_features(features, point_index, bow), bow).to_arrays())
     (out_dir / IMAGE_INSTANCES_FILE).write_text(json.dumps(image_instances_json(names, masks), indent=0))
     meta = {
         "format_version": FORMAT_VERSION,
@@ -176,6 +174,13 @@ def build_map(
     }
     meta_path.write_text(json.dumps(meta, indent=1))  # written last: marks a complete map
     return out_dir
+
+
+def bow_features(features: list[Features], point_index: list[np.ndarray], params: BowParams) -> list[Features]:
+    """What a map's bag of words indexes: each image's keypoints with a 3D point (``points_only``, unless no
+    image has any), else all of them."""
+    with_points = [f.subset(np.nonzero(idx >= 0)[0]) for f, idx in zip(features, point_index, strict=True)]
+    return with_points if params.points_only and any(len(f) for f in with_points) else features
 
 
 def _vote(obs: list[tuple[int, int]], keypoints: list[np.ndarray], masks: list[np.ndarray]) -> int:

@@ -41,14 +41,16 @@ class QueryTask:
     items: list[dict[str, Any]]
     """Plan entries plus ``_camera`` (the intrinsics) and ``_image`` (the image's path; sent to a server) or
     ``_features`` (its cached features; matched in process)."""
+    part_file: Path
+    """Where the task writes its lines when it is done (a stopped stage keeps them and resumes after them)."""
     defense: Any = None
     """The enabled :class:`~synthleak.localize.defense.DefensePolicy` the in-process server applies, or None."""
-    part_file: Path | None = None
-    """Where the task writes its lines when it is done (a stopped stage keeps them and resumes after them)."""
 
 
-def query_task(task: QueryTask) -> list[str]:
-    """Localize each image of the task; one JSON line per query, in the task's order (a worker task)."""
+def query_task(task: QueryTask) -> int:
+    """Localize each image of the task and write one JSON line per query, in the task's order, to its
+    ``part_file`` (a worker task; the lines stay on disk rather than travel back to the driver). Returns
+    the number of queries."""
     key = repr((str(task.map_dir), done_key(task.map_dir), task.server_url, config_to_dict(task.localize),
                 task.defense))
     localizer = worker_cached(key, lambda: make_localizer(task.map_dir, task.localize, task.server_url,
@@ -65,9 +67,8 @@ def query_task(task: QueryTask) -> list[str]:
         else:
             result = localizer.localize(Path(entry["_image"]).read_bytes(), camera)
         lines.append(query_line(entry, task.tier, task.room, result, task.defense, remote=bool(task.server_url)))
-    if task.part_file is not None:
-        atomic_write_text(task.part_file, "".join(line + "\n" for line in lines))
-    return lines
+    atomic_write_text(task.part_file, "".join(line + "\n" for line in lines))
+    return len(lines)
 
 
 def parts_dir(unit: Unit) -> Path:
@@ -121,12 +122,12 @@ class QueriesStage(Stage):
             files = [folder / f"{i:05d}.jsonl" for i in range(len(parts))]
             part_files.append(files)
             tasks += [QueryTask(ctx.paths.map_dir(tier, room), ctx.config.localize, ctx.server_url, tier, room, c,
-                                None if ctx.server_url else ctx.defense, part)
+                                part, None if ctx.server_url else ctx.defense)
                       for c, part in zip(parts, files, strict=True) if not part.is_file()]
         ctx.executor.map(query_task, tasks, "queries", ctx.progress)
         clear_worker_cache()
         for unit, files in zip(todo, part_files, strict=True):
             lines = [line for part in files for line in _read_part(part)]
             atomic_write_text(ctx.paths.query_log(*unit.item), "\n".join(lines) + "\n")
-            shutil.rmtree(parts_dir(unit))
+            shutil.rmtree(parts_dir(unit))  # after the log: a crash in between leaves parts to resume from
         return ctx.logs()
