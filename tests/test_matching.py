@@ -67,3 +67,26 @@ def test_binary_matcher_equals_reference(ratio: float, mutual: bool) -> None:
     assert {tuple(m) for m in got.tolist()} == _reference(a, b, ratio, mutual)
     if ratio == 0.75 and mutual:
         assert len(got) >= 70
+
+
+@pytest.mark.parametrize("backend", ["numpy", "torch"])
+@pytest.mark.parametrize("num_bytes", [32, 61])  # ORB's 256 bits, AKAZE's 488
+def test_binary_backends_give_the_reference_matches(backend: str, num_bytes: int) -> None:
+    """The int8 (torch) and float32 (numpy) products are both exact: each backend's matches equal counting
+    differing bits, ties included, and its distances equal the bit count."""
+    if backend == "torch":
+        pytest.importorskip("torch")
+    from synthleak.localize.matching import _match_binary, hamming
+
+    rng = np.random.default_rng(num_bytes)
+    b = rng.integers(0, 256, size=(90, num_bytes), dtype=np.uint8)
+    flips = rng.random((45, num_bytes * 8)) < 0.04
+    a = np.concatenate([np.packbits(np.unpackbits(b[:45], axis=1) ^ flips, axis=1),
+                        rng.integers(0, 256, size=(45, num_bytes), dtype=np.uint8)])
+    a[20], b[60] = a[2], b[2]  # exact ties on both sides
+    bits = (np.unpackbits(a, axis=1)[:, None, :] != np.unpackbits(b, axis=1)[None]).sum(-1)
+    assert np.array_equal(hamming(a, b, backend), bits.astype(np.float32))
+    for ratio, mutual in [(0.75, True), (0.8, False), (0.0, False)]:
+        got = _match_binary(a, b, ratio, mutual, backend)
+        assert {tuple(m) for m in got.tolist()} == _reference(a, b, ratio, mutual)
+    assert len(_match_binary(a, b, 0.75, True, backend)) >= 40

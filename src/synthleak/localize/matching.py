@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import lru_cache
+
 import numpy as np
 
 from synthleak.localize.features import Features
@@ -30,18 +33,24 @@ def match_features(a: Features, b: Features, ratio: float, mutual: bool) -> np.n
     return nearest_neighbours(squared_l2(a.descriptors, b.descriptors), ratio * ratio, mutual)
 
 
-def nearest_neighbours(dist: np.ndarray, ratio: float, mutual: bool) -> np.ndarray:
-    """Matches from an (Na, Nb) float distance matrix (modified in place and restored): each row's nearest
-    column (lowest index on ties) if ``best < ratio * second`` (when 0 < ratio < 1) and, with ``mutual``,
-    the row is also that column's nearest row."""
+def nearest_neighbours(dist: np.ndarray, ratio: float, mutual: bool,
+                       to_distance: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
+    """Matches from an (Na, Nb) float or integer score matrix (modified in place and restored): each row's
+    lowest column (lowest index on ties) if ``best < ratio * second`` (when 0 < ratio < 1) and, with
+    ``mutual``, the row is also that column's lowest row. Scores must rank as distances do;
+    ``to_distance`` maps the best and second scores to the distances the ratio test compares (default: the
+    scores themselves)."""
     rows = np.arange(dist.shape[0])
     nn = np.argmin(dist, axis=1)
     keep = np.ones(len(rows), dtype=bool)
     if 0.0 < ratio < 1.0 and dist.shape[1] > 1:
         best = dist[rows, nn]
-        dist[rows, nn] = np.inf  # the row minimum after removing the best is the second best
+        # the row minimum after removing the best is the second best
+        dist[rows, nn] = np.inf if dist.dtype.kind == "f" else np.iinfo(dist.dtype).max
         second = dist.min(axis=1)
         dist[rows, nn] = best
+        if to_distance is not None:
+            best, second = to_distance(best), to_distance(second)
         best, second = np.maximum(best, 0.0), np.maximum(second, 0.0)  # rounding below 0 counts as 0
         keep &= best < ratio * second
     if mutual:
@@ -63,20 +72,59 @@ def _is_column_argmin(dist: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> n
     return first
 
 
-def hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(Na, Nb) float32 Hamming distances of packed binary descriptors (uint8 rows), exact.
-
-    Bits become +-1 floats, so one BLAS product gives ``bits - 2 * hamming`` (integers far below 2^24, exact
-    in float32): twice as fast here as OpenCV's brute-force popcount (2048 x 2048 ORB: 18 -> 9 ms)."""
-    sa = np.unpackbits(np.asarray(a, dtype=np.uint8), axis=1).astype(np.float32)
-    sb = np.unpackbits(np.asarray(b, dtype=np.uint8), axis=1).astype(np.float32)
-    sa, sb = sa * 2.0 - 1.0, sb * 2.0 - 1.0
-    dist = sa @ sb.T
-    dist *= -0.5
-    dist += 0.5 * sa.shape[1]
-    return dist
+HAMMING_BACKENDS = ("auto", "torch", "numpy")
+"""How the binary matcher forms its +-1 product: ``torch`` (int8 x int8 -> int32, ``torch._int_mm``: 2-4x
+faster than float32 BLAS on CPUs with VNNI), ``numpy`` (float32 BLAS), ``auto`` (torch where it is
+installed). Both products are exact integers, so every backend gives the same matches."""
 
 
-def _match_binary(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool) -> np.ndarray:
-    """Hamming matching, same rules as the float matcher (Lowe's test on the distances themselves)."""
-    return nearest_neighbours(hamming(a, b), ratio, mutual)
+def _signs(packed: np.ndarray) -> np.ndarray:
+    """(N, bits) int8 +-1 rows of packed binary descriptors (uint8 rows)."""
+    signs = np.unpackbits(np.asarray(packed, dtype=np.uint8), axis=1).astype(np.int8)
+    signs *= 2
+    signs -= 1
+    return signs
+
+
+@lru_cache(maxsize=1)
+def _torch_int_mm() -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
+    """``a @ b.T`` of int8 matrices as int32 through torch, or None where torch is not installed."""
+    try:
+        import torch
+    except ImportError:
+        return None
+
+    def int_mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return torch._int_mm(torch.from_numpy(a), torch.from_numpy(b).T).numpy()
+
+    return int_mm
+
+
+def negated_dot(a: np.ndarray, b: np.ndarray, backend: str = "auto") -> np.ndarray:
+    """(Na, Nb) ``-(sa . sb)`` of the +-1 bit rows of packed binary descriptors ``a``, ``b`` (uint8 rows):
+    ``hamming = (bits + score) / 2``, so the score ranks as the Hamming distance does. int32 (torch) or
+    float32 (numpy); exact either way (|score| <= bits, far below 2^24)."""
+    if backend not in HAMMING_BACKENDS:
+        raise ValueError(f"negated_dot: unknown backend {backend!r} (known: {', '.join(HAMMING_BACKENDS)})")
+    sa, sb = _signs(a), _signs(b)
+    np.negative(sb, out=sb)
+    int_mm = _torch_int_mm() if backend != "numpy" else None
+    if int_mm is not None and len(sa) and len(sb):
+        return int_mm(sa, sb)
+    if backend == "torch":
+        raise ImportError("negated_dot: backend 'torch' needs torch (the [learned] extra)")
+    return sa.astype(np.float32) @ sb.astype(np.float32).T
+
+
+def hamming(a: np.ndarray, b: np.ndarray, backend: str = "auto") -> np.ndarray:
+    """(Na, Nb) float32 Hamming distances of packed binary descriptors (uint8 rows), exact."""
+    bits = 8 * np.asarray(a).shape[1]
+    return ((bits + negated_dot(a, b, backend)) // 2).astype(np.float32)
+
+
+def _match_binary(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool, backend: str = "auto") -> np.ndarray:
+    """Hamming matching, same rules as the float matcher (Lowe's test on the Hamming distances themselves,
+    in float32; the nearest neighbours straight from the product's scores)."""
+    bits = 8 * np.asarray(a).shape[1]
+    return nearest_neighbours(negated_dot(a, b, backend), ratio, mutual,
+                              to_distance=lambda score: ((bits + score) // 2).astype(np.float32))
