@@ -1,0 +1,88 @@
+"""Milliseconds per matched image pair for the binary matcher's backends (and the float matcher beside them).
+
+    python benchmarks/matching.py                       # ORB-, AKAZE- and SIFT-sized pairs, 2048 query keypoints
+    python benchmarks/matching.py --query 2048 --map 900 --repeats 50
+
+A localization matches its query against the top-k retrieved map images (40 by default), one pair each:
+this is 50-80 % of a query's CPU time. Binary descriptors match through an exact +-1 product, as int8 through
+``torch._int_mm`` or as float32 through BLAS (``synthleak.localize.matching.HAMMING_BACKENDS``); the table
+gives both and checks that their matches are identical. The threads are capped at 1, as in a study's workers.
+Random descriptors: the cost depends on the sizes only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from collections.abc import Callable
+from functools import partial
+
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
+import numpy as np  # noqa: E402
+from rich.console import Console  # noqa: E402
+from rich.table import Table  # noqa: E402
+
+from synthleak.localize.matching import _match_binary, nearest_neighbours, squared_l2  # noqa: E402
+
+KINDS = {"orb": ("binary", 32, 0.75), "akaze": ("binary", 61, 0.8), "sift": ("float", 128, 0.8)}
+"""Tier: (descriptor kind, bytes or floats per descriptor, ratio) as in ``synthleak.localize.tiers``."""
+
+
+def _ms(fn: Callable[[], object], repeats: int) -> float:
+    fn()  # warm-up (imports, allocations)
+    start = time.perf_counter()
+    for _ in range(repeats):
+        fn()
+    return (time.perf_counter() - start) / repeats * 1e3
+
+
+def _binary(a: np.ndarray, b: np.ndarray, ratio: float, backend: str) -> np.ndarray:
+    return _match_binary(a, b, ratio, True, backend)
+
+
+def _float(a: np.ndarray, b: np.ndarray, ratio: float) -> np.ndarray:
+    return nearest_neighbours(squared_l2(a, b), ratio * ratio, True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--query", type=int, default=2048, help="query keypoints")
+    parser.add_argument("--map", type=int, default=900, help="keypoints with a 3D point in the map image")
+    parser.add_argument("--repeats", type=int, default=30)
+    args = parser.parse_args()
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+        backends = ["numpy", "torch"]
+    except ImportError:
+        backends = ["numpy"]
+    rng = np.random.default_rng(0)
+    table = Table(title=f"ms per image pair: {args.query} query x {args.map} map descriptors, 1 thread")
+    for column in ("tier", "backend", "ms / pair", "ms / query at top 40", "matches", "same matches"):
+        table.add_column(column, justify="right")
+    for tier, (kind, width, ratio) in KINDS.items():
+        if kind == "binary":
+            a = rng.integers(0, 256, (args.query, width), dtype=np.uint8)
+            b = np.concatenate([a[: args.map // 2], rng.integers(0, 256, (args.map - args.map // 2, width),
+                                                                 dtype=np.uint8)])
+            reference = None
+            for backend in backends:
+                run = partial(_binary, a, b, ratio, backend)
+                ms, matches = _ms(run, args.repeats), run()
+                reference = matches if reference is None else reference
+                table.add_row(tier, backend, f"{ms:.2f}", f"{40 * ms:.0f}", str(len(matches)),
+                              str(np.array_equal(matches, reference)))
+        else:
+            a = rng.random((args.query, width), dtype=np.float32)
+            b = np.concatenate([a[: args.map // 2], rng.random((args.map - args.map // 2, width), np.float32)])
+            ms = _ms(partial(_float, a, b, ratio), args.repeats)
+            table.add_row(tier, "numpy (float32)", f"{ms:.2f}", f"{40 * ms:.0f}", "", "")
+    Console().print(table)
+
+
+if __name__ == "__main__":
+    main()
