@@ -88,10 +88,15 @@ def _signs(packed: np.ndarray) -> np.ndarray:
 
 @lru_cache(maxsize=1)
 def _torch_int_mm() -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
-    """``a @ b.T`` of int8 matrices as int32 through torch, or None where torch is not installed."""
+    """``a @ b.T`` of int8 matrices as int32 through torch, or None where torch is not installed or its
+    ``_int_mm`` does not run on CPU (older releases)."""
     try:
         import torch
-    except ImportError:
+
+        probe = torch.ones((2, 8), dtype=torch.int8)
+        if int(torch._int_mm(probe, probe.T)[0, 0]) != 8:
+            return None
+    except (ImportError, AttributeError, RuntimeError, NotImplementedError):
         return None
 
     def int_mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
