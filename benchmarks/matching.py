@@ -26,9 +26,11 @@ from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
 from synthleak.localize.matching import _match_binary, nearest_neighbours, squared_l2  # noqa: E402
+from synthleak.localize.tiers import Tier, get_tier  # noqa: E402
 
-KINDS = {"orb": ("binary", 32, 0.75), "akaze": ("binary", 61, 0.8), "sift": ("float", 128, 0.8)}
-"""Tier: (descriptor kind, bytes or floats per descriptor, ratio) as in ``synthleak.localize.tiers``."""
+SIZES = {"orb": ("binary", 32), "akaze": ("binary", 61), "sift": ("float", 128)}
+"""Tier: descriptor kind and bytes (binary) or floats per descriptor; the ratio test and mutual check are
+the tier's own (``synthleak.localize.tiers``)."""
 
 
 def _ms(fn: Callable[[], object], repeats: int) -> float:
@@ -39,19 +41,26 @@ def _ms(fn: Callable[[], object], repeats: int) -> float:
     return (time.perf_counter() - start) / repeats * 1e3
 
 
-def _binary(a: np.ndarray, b: np.ndarray, ratio: float, backend: str) -> np.ndarray:
-    return _match_binary(a, b, ratio, True, backend)
+def _binary(a: np.ndarray, b: np.ndarray, tier: Tier, backend: str) -> np.ndarray:
+    return _match_binary(a, b, tier.ratio, tier.mutual, backend)
 
 
-def _float(a: np.ndarray, b: np.ndarray, ratio: float) -> np.ndarray:
-    return nearest_neighbours(squared_l2(a, b), ratio * ratio, True)
+def _float(a: np.ndarray, b: np.ndarray, tier: Tier) -> np.ndarray:
+    return nearest_neighbours(squared_l2(a, b), tier.ratio * tier.ratio, tier.mutual)
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--query", type=int, default=2048, help="query keypoints")
-    parser.add_argument("--map", type=int, default=900, help="keypoints with a 3D point in the map image")
-    parser.add_argument("--repeats", type=int, default=30)
+    parser.add_argument("--query", type=_positive, default=2048, help="query keypoints")
+    parser.add_argument("--map", type=_positive, default=900, help="keypoints with a 3D point in the map image")
+    parser.add_argument("--repeats", type=_positive, default=30)
     args = parser.parse_args()
     try:
         import torch
@@ -64,23 +73,24 @@ def main() -> None:
     table = Table(title=f"ms per image pair: {args.query} query x {args.map} map descriptors, 1 thread")
     for column in ("tier", "backend", "ms / pair", "ms / query at top 40", "matches", "same matches"):
         table.add_column(column, justify="right")
-    for tier, (kind, width, ratio) in KINDS.items():
+    for name, (kind, width) in SIZES.items():
+        tier = get_tier(name)
         if kind == "binary":
             a = rng.integers(0, 256, (args.query, width), dtype=np.uint8)
             b = np.concatenate([a[: args.map // 2], rng.integers(0, 256, (args.map - args.map // 2, width),
                                                                  dtype=np.uint8)])
             reference = None
             for backend in backends:
-                run = partial(_binary, a, b, ratio, backend)
+                run = partial(_binary, a, b, tier, backend)
                 ms, matches = _ms(run, args.repeats), run()
                 reference = matches if reference is None else reference
-                table.add_row(tier, backend, f"{ms:.2f}", f"{40 * ms:.0f}", str(len(matches)),
+                table.add_row(name, backend, f"{ms:.2f}", f"{40 * ms:.0f}", str(len(matches)),
                               str(np.array_equal(matches, reference)))
         else:
             a = rng.random((args.query, width), dtype=np.float32)
             b = np.concatenate([a[: args.map // 2], rng.random((args.map - args.map // 2, width), np.float32)])
-            ms = _ms(partial(_float, a, b, ratio), args.repeats)
-            table.add_row(tier, "numpy (float32)", f"{ms:.2f}", f"{40 * ms:.0f}", "", "")
+            ms = _ms(partial(_float, a, b, tier), args.repeats)
+            table.add_row(name, "numpy (float32)", f"{ms:.2f}", f"{40 * ms:.0f}", "", "")
     Console().print(table)
 
 

@@ -117,19 +117,23 @@ def negated_dot(a: np.ndarray, b: np.ndarray, backend: str = "auto") -> np.ndarr
     if int_mm is not None and len(sa) and len(sb):
         return int_mm(sa, sb)
     if backend == "torch":
-        raise ImportError("negated_dot: backend 'torch' needs torch (the [learned] extra)")
+        raise ImportError("negated_dot: backend 'torch' needs torch whose _int_mm runs on CPU (the [learned] extra)")
     return sa.astype(np.float32) @ sb.astype(np.float32).T
+
+
+def _hamming_from_score(score: np.ndarray, packed_bytes: int) -> np.ndarray:
+    """float32 Hamming distances from :func:`negated_dot` scores of ``packed_bytes``-byte descriptors."""
+    return ((8 * packed_bytes + score) // 2).astype(np.float32)
 
 
 def hamming(a: np.ndarray, b: np.ndarray, backend: str = "auto") -> np.ndarray:
     """(Na, Nb) float32 Hamming distances of packed binary descriptors (uint8 rows), exact."""
-    bits = 8 * np.asarray(a).shape[1]
-    return ((bits + negated_dot(a, b, backend)) // 2).astype(np.float32)
+    return _hamming_from_score(negated_dot(a, b, backend), np.asarray(a).shape[1])
 
 
 def _match_binary(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool, backend: str = "auto") -> np.ndarray:
     """Hamming matching, same rules as the float matcher (Lowe's test on the Hamming distances themselves,
     in float32; the nearest neighbours straight from the product's scores)."""
-    bits = 8 * np.asarray(a).shape[1]
+    packed_bytes = np.asarray(a).shape[1]
     return nearest_neighbours(negated_dot(a, b, backend), ratio, mutual,
-                              to_distance=lambda score: ((bits + score) // 2).astype(np.float32))
+                              to_distance=lambda score: _hamming_from_score(score, packed_bytes))
