@@ -25,7 +25,8 @@ import numpy as np  # noqa: E402
 from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
-from synthleak.localize.matching import _match_binary, nearest_neighbours, squared_l2  # noqa: E402
+from synthleak.localize.features import Features  # noqa: E402
+from synthleak.localize.matching import _match_binary, match_features  # noqa: E402
 from synthleak.localize.tiers import Tier, get_tier  # noqa: E402
 
 SIZES = {"orb": ("binary", 32), "akaze": ("binary", 61), "sift": ("float", 128)}
@@ -43,10 +44,6 @@ def _ms(fn: Callable[[], object], repeats: int) -> float:
 
 def _binary(a: np.ndarray, b: np.ndarray, tier: Tier, backend: str) -> np.ndarray:
     return _match_binary(a, b, tier.ratio, tier.mutual, backend)
-
-
-def _float(a: np.ndarray, b: np.ndarray, tier: Tier) -> np.ndarray:
-    return nearest_neighbours(squared_l2(a, b), tier.ratio * tier.ratio, tier.mutual)
 
 
 def _positive(text: str) -> int:
@@ -89,7 +86,8 @@ def main() -> None:
         else:
             a = rng.random((args.query, width), dtype=np.float32)
             b = np.concatenate([a[: args.map // 2], rng.random((args.map - args.map // 2, width), np.float32)])
-            ms = _ms(partial(_float, a, b, tier), args.repeats)
+            query, image = (Features(np.zeros((len(d), 2)), d) for d in (a, b))
+            ms = _ms(partial(match_features, query, image, tier.ratio, tier.mutual), args.repeats)
             table.add_row(name, "numpy (float32)", f"{ms:.2f}", f"{40 * ms:.0f}", "", "")
     Console().print(table)
 
