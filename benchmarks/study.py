@@ -178,11 +178,15 @@ def main() -> None:
 
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     from synthleak.config import load_config
+    from synthleak.errors import SynthleakError
     from synthleak.study import run_study
 
+    try:  # before --fresh deletes anything: a misspelt config name costs no earlier run
+        config = load_config(args.config)
+    except SynthleakError as exc:
+        parser.error(str(exc))
     if args.fresh and args.out.exists():
         shutil.rmtree(args.out)
-    config = load_config(args.config)
     kwargs = {"force": args.force, "progress": False, "workers": args.workers}
     if "executor" in inspect.signature(run_study).parameters:  # older run_study had no executors
         kwargs |= {"executor": args.executor, "address": args.address}
