@@ -6,8 +6,9 @@
 A localization matches its query against the top-k retrieved map images (40 by default), one pair each:
 this is 50-80 % of a query's CPU time. Binary descriptors match through an exact +-1 product, as int8 through
 ``torch._int_mm`` or as float32 through BLAS (``synthleak.localize.matching.HAMMING_BACKENDS``); the table
-gives both and checks that their matches are identical. The threads are capped at 1, as in a study's workers.
-Random descriptors: the cost depends on the sizes only.
+gives both and checks that their matches are identical, and below it the backend ``auto`` chose on this machine
+with its probe's timings. The threads are capped at 1, as in a study's workers. Random descriptors: the cost
+depends on the sizes only.
 """
 
 from __future__ import annotations
@@ -26,7 +27,16 @@ from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
 from synthleak.localize.features import Features  # noqa: E402
-from synthleak.localize.matching import _match_binary, match_features  # noqa: E402
+from synthleak.localize.matching import (  # noqa: E402
+    HAMMING_BACKEND_ENV,
+    PROBE_SHAPE,
+    TORCH_MARGIN,
+    _match_binary,
+    auto_backend,
+    backend_products,
+    match_features,
+    probe_timings,
+)
 from synthleak.localize.tiers import Tier, get_tier  # noqa: E402
 
 SIZES = {"orb": ("binary", 32), "akaze": ("binary", 61), "sift": ("float", 128)}
@@ -63,9 +73,9 @@ def main() -> None:
         import torch
 
         torch.set_num_threads(1)
-        backends = ["numpy", "torch"]
     except ImportError:
-        backends = ["numpy"]
+        pass
+    backends = list(backend_products())  # numpy, and torch where its _int_mm runs on CPU
     rng = np.random.default_rng(0)
     table = Table(title=f"ms per image pair: {args.query} query x {args.map} map descriptors, 1 thread")
     for column in ("tier", "backend", "ms / pair", "ms / query at top 40", "matches", "same matches"):
@@ -89,7 +99,17 @@ def main() -> None:
             query, image = (Features(np.zeros((len(d), 2)), d) for d in (a, b))
             ms = _ms(partial(match_features, query, image, tier.ratio, tier.mutual), args.repeats)
             table.add_row(name, "numpy (float32)", f"{ms:.2f}", f"{40 * ms:.0f}", "", "")
-    Console().print(table)
+    console = Console()
+    console.print(table)
+    rows_a, rows_b, num_bytes = PROBE_SHAPE
+    start = time.perf_counter()
+    timings = probe_timings()
+    probe_s = time.perf_counter() - start
+    probe = ", ".join(f"{name} {seconds * 1e3:.3f} ms" for name, seconds in timings.items())
+    override = os.environ.get(HAMMING_BACKEND_ENV, "").strip()
+    source = f" ({HAMMING_BACKEND_ENV}={override})" if override and override.lower() != "auto" else ""
+    console.print(f"auto -> {auto_backend()}{source}; probe ({rows_a} x {rows_b} rows of {8 * num_bytes} bits, min "
+                  f"per product, {probe_s * 1e3:.0f} ms in all): {probe}; torch needs >= {TORCH_MARGIN}x numpy's speed")
 
 
 if __name__ == "__main__":

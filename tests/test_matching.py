@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable, Iterator
+
 import numpy as np
 import pytest
 
+from synthleak.localize import matching
 from synthleak.localize.features import Features
 from synthleak.localize.matching import match_features
 
@@ -69,11 +73,11 @@ def test_binary_matcher_equals_reference(ratio: float, mutual: bool) -> None:
         assert len(got) >= 70
 
 
-@pytest.mark.parametrize("backend", ["numpy", "torch"])
+@pytest.mark.parametrize("backend", ["numpy", "torch", "auto"])
 @pytest.mark.parametrize("num_bytes", [32, 61])  # ORB's 256 bits, AKAZE's 488
 def test_binary_backends_give_the_reference_matches(backend: str, num_bytes: int) -> None:
-    """The int8 (torch) and float32 (numpy) products are both exact: each backend's matches equal counting
-    differing bits, ties included, and its distances equal the bit count."""
+    """The int8 (torch) and float32 (numpy) products are both exact: each backend's matches (auto's too,
+    whichever it picks) equal counting differing bits, ties included, and its distances equal the bit count."""
     if backend == "torch":
         pytest.importorskip("torch")
     from synthleak.localize.matching import _match_binary, hamming
@@ -90,3 +94,129 @@ def test_binary_backends_give_the_reference_matches(backend: str, num_bytes: int
         got = _match_binary(a, b, ratio, mutual, backend)
         assert {tuple(m) for m in got.tolist()} == _reference(a, b, ratio, mutual)
     assert len(_match_binary(a, b, 0.75, True, backend)) >= 40
+
+
+@pytest.fixture
+def fresh_probe(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """auto measured afresh in this test (and again after it, so injected backends do not leak), no env var."""
+    monkeypatch.delenv(matching.HAMMING_BACKEND_ENV, raising=False)
+    matching.probe_timings.cache_clear()
+    matching._probed_backend.cache_clear()
+    yield
+    matching.probe_timings.cache_clear()
+    matching._probed_backend.cache_clear()
+
+
+def _descriptor_pair(seed: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    b = rng.integers(0, 256, size=(80, 32), dtype=np.uint8)
+    flips = rng.random((40, 256)) < 0.04
+    a = np.concatenate([np.packbits(np.unpackbits(b[:40], axis=1) ^ flips, axis=1),
+                        rng.integers(0, 256, size=(40, 32), dtype=np.uint8)])
+    return a, b
+
+
+def _counting(product: Callable[[np.ndarray, np.ndarray], np.ndarray], calls: list[int],
+              sleep_s: float = 0.0) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    def wrapped(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        calls.append(1)
+        if sleep_s:
+            time.sleep(sleep_s)
+        return product(a, b)
+
+    return wrapped
+
+
+def test_choose_backend_needs_a_clear_margin() -> None:
+    assert matching.choose_backend({"numpy": 1.0, "torch": 0.5}) == "torch"
+    assert matching.choose_backend({"numpy": 1.0, "torch": 1.0 / matching.TORCH_MARGIN}) == "torch"
+    assert matching.choose_backend({"numpy": 1.0, "torch": 0.9}) == "numpy"  # faster, but within the noise
+    assert matching.choose_backend({"numpy": 1.0, "torch": 30.0}) == "numpy"  # int8 without fast kernels
+    assert matching.choose_backend({"numpy": 1.0}) == "numpy"  # no torch here
+    with pytest.raises(ValueError, match="numpy"):
+        matching.choose_backend({"torch": 1.0})
+
+
+def test_auto_never_picks_a_backend_measured_slower_than_float32(fresh_probe: None) -> None:
+    """Real measurements on this machine: auto is the probe's choice, and where that is torch, torch is not
+    slower than float32 BLAS (10 % for noise) on a larger, matcher-sized product measured independently (the
+    minimum over up to four rounds, so that another process's load is not taken for a slow backend)."""
+    chosen = matching.auto_backend()
+    timings = matching.probe_timings()
+    assert chosen == matching.choose_backend(timings) and set(timings) == set(matching.backend_products())
+    assert all(0 < seconds < 0.5 for seconds in timings.values()), timings
+    if chosen == "torch":
+        best = {"numpy": np.inf, "torch": np.inf}
+        for _ in range(4):  # a loaded machine's noise goes away with more samples, a slow backend does not
+            again = matching.measure_backends(shape=(1024, 1024, 32), repeats=10, budget_s=0.3)
+            best = {name: min(best[name], again[name]) for name in best}
+            if best["torch"] <= best["numpy"] * 1.1:
+                break
+        assert best["torch"] <= best["numpy"] * 1.1, (timings, best)
+
+
+def test_probe_is_quick(fresh_probe: None) -> None:
+    matching.backend_products()  # importing torch is not the probe's cost
+    start = time.perf_counter()
+    matching.probe_timings()
+    assert time.perf_counter() - start < 0.5
+
+
+def test_auto_falls_back_to_numpy_where_int8_is_slow(fresh_probe: None, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A host whose int8 product is slow (here: the torch product made to sleep 10 ms a call, or float32 BLAS
+    itself where torch is not installed): auto measures it, takes float32 BLAS, and no longer calls it."""
+    real = matching._torch_int_mm() or matching._float32_product
+    calls: list[int] = []
+    slow = _counting(real, calls, sleep_s=0.01)
+    monkeypatch.setattr(matching, "_torch_int_mm", lambda: slow)
+    assert matching.auto_backend() == "numpy"
+    timings = matching.probe_timings()
+    assert timings["torch"] >= 0.01 > timings["numpy"] * matching.TORCH_MARGIN, timings
+    calls.clear()
+    a, b = _descriptor_pair()
+    got = matching._match_binary(a, b, 0.8, True)
+    assert not calls and {tuple(m) for m in got.tolist()} == _reference(a, b, 0.8, True)
+    assert matching.negated_dot(a, b).dtype == np.float32  # the BLAS product
+
+
+def test_auto_takes_a_faster_backend(fresh_probe: None, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The reverse: a torch product far faster than float32 BLAS (here float32 BLAS made to sleep, with the
+    real torch product where it runs, else an exact numpy stand-in) is measured, chosen and used."""
+    real = matching._torch_int_mm() or (lambda a, b: (a.astype(np.int32) @ b.astype(np.int32).T))
+    calls: list[int] = []
+    monkeypatch.setattr(matching, "_torch_int_mm", lambda: _counting(real, calls))
+    monkeypatch.setattr(matching, "_float32_product", _counting(matching._float32_product, [], sleep_s=0.01))
+    assert matching.auto_backend() == "torch"
+    assert matching.probe_timings()["torch"] * matching.TORCH_MARGIN <= matching.probe_timings()["numpy"]
+    calls.clear()
+    a, b = _descriptor_pair()
+    got = matching._match_binary(a, b, 0.8, True)
+    assert calls and {tuple(m) for m in got.tolist()} == _reference(a, b, 0.8, True)
+
+
+def test_auto_without_torch_is_numpy(fresh_probe: None, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(matching, "_torch_int_mm", lambda: None)
+    assert matching.auto_backend() == "numpy" and set(matching.probe_timings()) == {"numpy"}
+    a, b = _descriptor_pair()
+    assert {tuple(m) for m in matching._match_binary(a, b, 0.8, True).tolist()} == _reference(a, b, 0.8, True)
+    with pytest.raises(ImportError, match="torch"):
+        matching.negated_dot(a, b, "torch")
+    monkeypatch.setenv(matching.HAMMING_BACKEND_ENV, "torch")
+    with pytest.raises(ImportError, match=matching.HAMMING_BACKEND_ENV):
+        matching.negated_dot(a, b)
+
+
+def test_env_var_overrides_auto(fresh_probe: None, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``SYNTHLEAK_HAMMING_BACKEND`` picks the backend without a probe; a bad value names the variable."""
+    calls: list[int] = []
+    monkeypatch.setattr(matching, "_torch_int_mm", lambda: _counting(lambda a, b: np.zeros((len(a), len(b))), calls))
+    monkeypatch.setenv(matching.HAMMING_BACKEND_ENV, "numpy")
+    assert matching.auto_backend() == "numpy" and matching.probe_timings.cache_info().currsize == 0
+    a, b = _descriptor_pair()
+    matching.negated_dot(a, b)
+    assert not calls
+    monkeypatch.setenv(matching.HAMMING_BACKEND_ENV, " Torch ")
+    assert matching.auto_backend() == "torch"
+    monkeypatch.setenv(matching.HAMMING_BACKEND_ENV, "gpu")
+    with pytest.raises(ValueError, match=f"{matching.HAMMING_BACKEND_ENV}='gpu'.*auto, torch, numpy"):
+        matching.auto_backend()

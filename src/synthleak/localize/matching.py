@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import time
 from collections.abc import Callable
 from functools import lru_cache
 
@@ -74,8 +76,19 @@ def _is_column_argmin(dist: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> n
 
 HAMMING_BACKENDS = ("auto", "torch", "numpy")
 """How the binary matcher forms its +-1 product: ``torch`` (int8 x int8 -> int32, ``torch._int_mm``: 2-4x
-faster than float32 BLAS on CPUs with VNNI), ``numpy`` (float32 BLAS), ``auto`` (torch where it is
-installed). Both products are exact integers, so every backend gives the same matches."""
+faster than float32 BLAS on CPUs with VNNI, 20-50x slower on some without), ``numpy`` (float32 BLAS),
+``auto`` (the one :func:`auto_backend` measures faster on this machine, or ``$SYNTHLEAK_HAMMING_BACKEND``).
+Both products are exact integers, so every backend gives the same matches."""
+
+HAMMING_BACKEND_ENV = "SYNTHLEAK_HAMMING_BACKEND"
+"""Environment variable that overrides what ``auto`` means (``auto``, ``torch`` or ``numpy``; unset: auto)."""
+
+TORCH_MARGIN = 1.25
+"""``auto`` takes torch only if its probe time is at least this many times below float32 BLAS's."""
+
+PROBE_SHAPE = (512, 256, 32)
+"""Probe product: query rows, map rows, bytes per descriptor (ORB's 256 bits). Small enough that one int8
+product on a host without fast int8 kernels (~0.14 s on an AVX2 EPYC: 0.28 s at 512 x 512) stays well under 0.5 s."""
 
 
 def _signs(packed: np.ndarray) -> np.ndarray:
@@ -105,20 +118,103 @@ def _torch_int_mm() -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
     return int_mm
 
 
+def _float32_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b.T`` of int8 matrices as float32 through BLAS (exact for |entries| <= 2^24)."""
+    return a.astype(np.float32) @ b.astype(np.float32).T
+
+
+def backend_products() -> dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]]:
+    """The concrete backends that run here (``numpy`` always, ``torch`` where its ``_int_mm`` runs on CPU),
+    each as its int8 ``a @ b.T`` product."""
+    products = {"numpy": _float32_product}
+    int_mm = _torch_int_mm()
+    if int_mm is not None:
+        products["torch"] = int_mm
+    return products
+
+
+def measure_backends(shape: tuple[int, int, int] = PROBE_SHAPE, repeats: int = 10, budget_s: float = 0.1,
+                     products: dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]] | None = None,
+                     ) -> dict[str, float]:
+    """Seconds per ``shape`` (query rows, map rows, bytes) +-1 product of each backend (default:
+    :func:`backend_products`), the minimum of up to ``repeats`` interleaved runs after a tiny warm-up; a backend
+    stops repeating once its runs add up to ``budget_s`` (one run of a slow one is enough to rule it out)."""
+    if repeats < 1:
+        raise ValueError(f"measure_backends: repeats must be at least 1, got {repeats}")
+    products = backend_products() if products is None else products
+    rows_a, rows_b, num_bytes = shape
+    rng = np.random.default_rng(0)
+    a = _signs(rng.integers(0, 256, (rows_a, num_bytes), dtype=np.uint8))
+    b = _signs(rng.integers(0, 256, (rows_b, num_bytes), dtype=np.uint8))
+    best = {name: np.inf for name in products}
+    spent = dict.fromkeys(products, 0.0)
+    for product in products.values():
+        product(a[:8], b[:8])  # first-call costs (library loading, thread pools)
+    for _ in range(repeats):
+        for name, product in products.items():
+            if spent[name] >= budget_s:
+                continue
+            start = time.perf_counter()
+            product(a, b)
+            elapsed = time.perf_counter() - start
+            best[name], spent[name] = min(best[name], elapsed), spent[name] + elapsed
+    return best
+
+
+def choose_backend(timings: dict[str, float], margin: float = TORCH_MARGIN) -> str:
+    """``torch`` if its measured seconds are at least ``margin`` times below ``numpy``'s, else ``numpy``
+    (also where torch was not measured)."""
+    if "numpy" not in timings:
+        raise ValueError(f"choose_backend: no 'numpy' timing to compare with (got {sorted(timings)})")
+    torch_s = timings.get("torch")
+    return "torch" if torch_s is not None and torch_s * margin <= timings["numpy"] else "numpy"
+
+
+@lru_cache(maxsize=1)
+def probe_timings() -> dict[str, float]:
+    """This process's :func:`measure_backends` (run at first use under the thread settings of that moment,
+    then cached): what ``auto`` rests on."""
+    return measure_backends()
+
+
+@lru_cache(maxsize=1)
+def _probed_backend() -> str:
+    return choose_backend(probe_timings())
+
+
+def _backend_from_env() -> str:
+    value = os.environ.get(HAMMING_BACKEND_ENV, "").strip().lower() or "auto"
+    if value not in HAMMING_BACKENDS:
+        raise ValueError(f"{HAMMING_BACKEND_ENV}={os.environ[HAMMING_BACKEND_ENV]!r}: expected one of "
+                         f"{', '.join(HAMMING_BACKENDS)}")
+    return value
+
+
+def auto_backend() -> str:
+    """The concrete backend ``auto`` stands for: ``$SYNTHLEAK_HAMMING_BACKEND`` if it names one, else
+    :func:`choose_backend` of :func:`probe_timings` (measured once per process)."""
+    override = _backend_from_env()
+    return override if override != "auto" else _probed_backend()
+
+
 def negated_dot(a: np.ndarray, b: np.ndarray, backend: str = "auto") -> np.ndarray:
     """(Na, Nb) ``-(sa . sb)`` of the +-1 bit rows of packed binary descriptors ``a``, ``b`` (uint8 rows):
     ``hamming = (bits + score) / 2``, so the score ranks as the Hamming distance does. int32 (torch) or
     float32 (numpy); exact either way (|score| <= bits, far below 2^24)."""
     if backend not in HAMMING_BACKENDS:
         raise ValueError(f"negated_dot: unknown backend {backend!r} (known: {', '.join(HAMMING_BACKENDS)})")
+    concrete = auto_backend() if backend == "auto" else backend
     sa, sb = _signs(a), _signs(b)
     np.negative(sb, out=sb)
-    int_mm = _torch_int_mm() if backend != "numpy" else None
-    if int_mm is not None and len(sa) and len(sb):
-        return int_mm(sa, sb)
-    if backend == "torch":
-        raise ImportError("negated_dot: backend 'torch' needs torch whose _int_mm runs on CPU (the [learned] extra)")
-    return sa.astype(np.float32) @ sb.astype(np.float32).T
+    if concrete == "torch":
+        int_mm = _torch_int_mm()
+        if int_mm is None:
+            source = f" (from {HAMMING_BACKEND_ENV})" if backend == "auto" else ""
+            raise ImportError(f"negated_dot: backend 'torch'{source} needs torch whose _int_mm runs on CPU "
+                              "(the [learned] extra)")
+        if len(sa) and len(sb):
+            return int_mm(sa, sb)
+    return _float32_product(sa, sb)
 
 
 def _hamming_from_score(score: np.ndarray, packed_bytes: int) -> np.ndarray:
