@@ -43,7 +43,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from synthleak.geometry.poses import rotation_angles_deg
 from synthleak.plugins import resolve
 from synthleak.seeding import make_rng
 
@@ -131,7 +130,8 @@ def chordal_mean(rotations: np.ndarray, weights: np.ndarray | None = None) -> np
 
 def _angles_deg(rot_a: np.ndarray, rot_b: np.ndarray) -> np.ndarray:
     """Angles (degrees) of ``rot_a[n] rot_b[n]ᵀ`` for stacks, or one against a stack."""
-    return rotation_angles_deg(np.einsum("...ik,...jk->...ij", rot_a, rot_b))
+    cos = (np.einsum("...ij,...ij->...", rot_a, rot_b) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 def _centres(cam_from_x: np.ndarray) -> np.ndarray:
