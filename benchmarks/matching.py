@@ -31,6 +31,7 @@ from synthleak.localize.matching import (  # noqa: E402
     HAMMING_BACKEND_ENV,
     PROBE_SHAPE,
     TORCH_MARGIN,
+    _backend_from_env,
     _match_binary,
     auto_backend,
     backend_products,
@@ -106,8 +107,7 @@ def main() -> None:
     timings = probe_timings()
     probe_s = time.perf_counter() - start
     probe = ", ".join(f"{name} {seconds * 1e3:.3f} ms" for name, seconds in timings.items())
-    override = os.environ.get(HAMMING_BACKEND_ENV, "").strip()
-    source = f" ({HAMMING_BACKEND_ENV}={override})" if override and override.lower() != "auto" else ""
+    source = f" (from {HAMMING_BACKEND_ENV})" if _backend_from_env() != "auto" else ""
     console.print(f"auto -> {auto_backend()}{source}; probe ({rows_a} x {rows_b} rows of {8 * num_bytes} bits, min "
                   f"per product, {probe_s * 1e3:.0f} ms in all): {probe}; torch needs >= {TORCH_MARGIN}x numpy's speed")
 

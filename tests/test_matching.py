@@ -101,10 +101,8 @@ def fresh_probe(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     """auto measured afresh in this test (and again after it, so injected backends do not leak), no env var."""
     monkeypatch.delenv(matching.HAMMING_BACKEND_ENV, raising=False)
     matching.probe_timings.cache_clear()
-    matching._probed_backend.cache_clear()
     yield
     matching.probe_timings.cache_clear()
-    matching._probed_backend.cache_clear()
 
 
 def _descriptor_pair(seed: int = 5) -> tuple[np.ndarray, np.ndarray]:

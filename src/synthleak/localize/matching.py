@@ -177,11 +177,6 @@ def probe_timings() -> dict[str, float]:
     return measure_backends()
 
 
-@lru_cache(maxsize=1)
-def _probed_backend() -> str:
-    return choose_backend(probe_timings())
-
-
 def _backend_from_env() -> str:
     value = os.environ.get(HAMMING_BACKEND_ENV, "").strip().lower() or "auto"
     if value not in HAMMING_BACKENDS:
@@ -194,7 +189,7 @@ def auto_backend() -> str:
     """The concrete backend ``auto`` stands for: ``$SYNTHLEAK_HAMMING_BACKEND`` if it names one, else
     :func:`choose_backend` of :func:`probe_timings` (measured once per process)."""
     override = _backend_from_env()
-    return override if override != "auto" else _probed_backend()
+    return override if override != "auto" else choose_backend(probe_timings())
 
 
 def negated_dot(a: np.ndarray, b: np.ndarray, backend: str = "auto") -> np.ndarray:
