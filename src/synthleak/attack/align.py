@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from synthleak.geometry.poses import rotation_angles_deg
 from synthleak.plugins import resolve
 from synthleak.seeding import make_rng
 
@@ -130,8 +131,7 @@ def chordal_mean(rotations: np.ndarray, weights: np.ndarray | None = None) -> np
 
 def _angles_deg(rot_a: np.ndarray, rot_b: np.ndarray) -> np.ndarray:
     """Angles (degrees) of ``rot_a[n] rot_b[n]ᵀ`` for stacks, or one against a stack."""
-    cos = (np.einsum("...ij,...ij->...", rot_a, rot_b) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    return rotation_angles_deg(np.einsum("...ik,...jk->...ij", rot_a, rot_b))
 
 
 def _centres(cam_from_x: np.ndarray) -> np.ndarray:

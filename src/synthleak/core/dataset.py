@@ -21,6 +21,7 @@ import numpy as np
 from synthleak.core.types import Camera, InstanceInfo
 from synthleak.errors import SynthleakError
 from synthleak.geometry.poses import check_pose, make_pose, matrix_from_quat_wxyz
+from synthleak.portable import norm
 
 BOP_DEPTH_SCALE = 0.25
 """BOP 16-bit depth PNGs hold depth_mm / BOP_DEPTH_SCALE: 0.25 mm steps up to 16.4 m (0.1 would stop at 6.5 m)."""
@@ -259,7 +260,7 @@ def read_colmap_images(path: Path) -> dict[str, np.ndarray]:
         q = values[:4]
         if abs(np.linalg.norm(q) - 1.0) > 1e-6:
             raise DatasetError(f"{path}: image {name}: quaternion is not unit length ({q})")
-        poses[name] = make_pose(matrix_from_quat_wxyz(q / np.linalg.norm(q)), values[4:7])
+        poses[name] = make_pose(matrix_from_quat_wxyz(q / norm(q)), values[4:7])  # no BLAS: the same bits on any CPU
     return poses
 
 

@@ -23,6 +23,7 @@ import numpy as np
 from synthleak.atomic_io import atomic_write_text
 from synthleak.attack.presence import PresenceRecord, leave_one_scene_out
 from synthleak.evaluate.metrics import DEFAULT_THRESHOLDS
+from synthleak.portable import result_float
 
 COLUMNS: tuple[str, ...] = (
     "room", "object", "model_id", "category", "tier", "aligner", "delta_r_deg", "delta_t_m", "present_gt",
@@ -37,6 +38,7 @@ CONFIG_KEYS: tuple[str, ...] = ("tier", "aligner", "delta_r_deg", "delta_t_m", "
 """Fields that identify one attack configuration (one leave-one-scene-out experiment)."""
 
 FLOAT_COLUMNS = ("delta_r_deg", "delta_t_m", "eps", "rot_err_deg", "trans_err_m", "iou3d", "magnitude")
+
 
 
 # --------------------------------------------------------------------------------------------- helpers
@@ -253,21 +255,21 @@ def placement_summary(
 # --------------------------------------------------------------------------------------------- files
 
 
-def _plain(value: Any) -> Any:
+def plain(value: Any) -> Any:
     """JSON-ready value: numpy scalars/arrays to Python, floats to 10 significant digits, NaN/inf to None."""
     if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
+        return plain(value.tolist())
     if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
+        return [plain(v) for v in value]
     if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
+        return {str(k): plain(v) for k, v in value.items()}
     if isinstance(value, np.bool_ | bool):
         return bool(value)
     if isinstance(value, np.integer):
         return int(value)
     if isinstance(value, float | np.floating):
         value = float(value)
-        return float(f"{value:.10g}") if math.isfinite(value) else None
+        return result_float(value) if math.isfinite(value) else None
     return value
 
 
@@ -340,7 +342,7 @@ def ordered_columns(rows: Sequence[dict]) -> list[str]:
 
 
 def _csv_cell(value: Any) -> str:
-    value = _plain(value)
+    value = plain(value)
     if value is None:
         return ""
     if isinstance(value, list | dict):
@@ -348,7 +350,7 @@ def _csv_cell(value: Any) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, float):
-        return f"{value:.10g}"
+        return repr(result_float(value)) if math.isfinite(value) else f"{value}"
     return str(value)
 
 
@@ -368,7 +370,7 @@ def write_results(rows: Sequence[dict], out_dir: str | Path, stem: str = "result
     for row in rows:
         writer.writerow([_csv_cell(row.get(c)) for c in columns])
     atomic_write_text(csv_path, buffer.getvalue())
-    payload = [{c: _plain(row.get(c)) for c in columns} for row in rows]
+    payload = [{c: plain(row.get(c)) for c in columns} for row in rows]
     atomic_write_text(json_path, json.dumps(payload, indent=1, ensure_ascii=False) + "\n")
     return csv_path, json_path
 

@@ -63,9 +63,18 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0
 
 
 def rotation_angle_deg(rotation: np.ndarray) -> float:
-    """Angle of a rotation matrix in degrees (numerically safe arccos of the trace)."""
-    cos = (np.trace(rotation) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    """Angle of a rotation matrix in degrees: ``atan2(sin, cos)`` from its skew part and trace, accurate near 0
+    (``arccos`` of the trace turns a last-bit difference, say another CPU's, into 1e-6 degrees there)."""
+    return float(rotation_angles_deg(np.asarray(rotation, dtype=np.float64)))
+
+
+def rotation_angles_deg(rotations: np.ndarray) -> np.ndarray:
+    """Angles in degrees of a stack (..., 3, 3) of rotation matrices (see :func:`rotation_angle_deg`)."""
+    r = np.asarray(rotations, dtype=np.float64)
+    sx, sy, sz = r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]
+    sin2 = np.sqrt(sx * sx + sy * sy + sz * sz)  # 2 sin(angle)
+    cos2 = r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2] - 1.0  # 2 cos(angle)
+    return np.degrees(np.arctan2(sin2, cos2))
 
 
 SYMMETRIES = ("none", "2", "4", "z")

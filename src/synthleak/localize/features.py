@@ -60,7 +60,10 @@ SIFT_DIM = 128
 
 
 class SiftExtractor:
-    """COLMAP SIFT (pycolmap, CPU), L1-root normalised float descriptors, single threaded (deterministic)."""
+    """COLMAP SIFT (pycolmap, CPU), single threaded: COLMAP's uint8 descriptors (L1-root normalised, scaled
+    by 512) held as integer-valued float32 rows. Their squared L2 distances are integers below 2^24, exact in
+    float32 whatever the BLAS kernel sums first, so SIFT matches are the same on every CPU
+    (``docs/determinism.md``)."""
 
     def __init__(self, max_keypoints: int) -> None:
         import pycolmap
@@ -75,9 +78,7 @@ class SiftExtractor:
         kp = np.array([[k.x, k.y] for k in keypoints], dtype=np.float64).reshape(-1, 2)
         if not len(kp):  # a blank image: no keypoint, and an empty descriptor matrix of unknown width
             return Features(kp, np.zeros((0, SIFT_DIM), np.float32))
-        desc = np.asarray(descriptors.data, dtype=np.float32).reshape(len(kp), -1)
-        norms = np.linalg.norm(desc, axis=1, keepdims=True)
-        return Features(kp, desc / np.maximum(norms, 1e-12))
+        return Features(kp, np.asarray(descriptors.data, dtype=np.float32).reshape(len(kp), -1))
 
 
 class OpenCVExtractor:

@@ -123,11 +123,11 @@ def build_map(
             matches[(i, j)] = m
 
     tracks = build_tracks([len(f) for f in features], matches) if matches else []
-    projections = np.stack([k @ p[:3] for p in poses])
+    cams_from_world = np.stack(poses)
     centres = np.stack([np.linalg.inv(p)[:3, 3] for p in poses])
     keypoints = [f.keypoints for f in features]
     points = [p for t in progress_bar(tracks, "triangulation", progress)
-              if (p := triangulate_track(t, keypoints, projections, centres, TRIANGULATION_MAX_ERROR_PX,
+              if (p := triangulate_track(t, keypoints, cams_from_world, k, centres, TRIANGULATION_MAX_ERROR_PX,
                                          TRIANGULATION_MIN_ANGLE_DEG)) is not None]
 
     masks = [seq.instance(n) for n in names]

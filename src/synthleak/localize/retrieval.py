@@ -19,7 +19,7 @@ from scipy.cluster.vq import kmeans2
 from scipy.spatial.distance import cdist
 
 from synthleak.localize.features import Features
-from synthleak.localize.matching import squared_l2
+from synthleak.portable import UNIT_STEP, snap
 
 RETRIEVAL_METHODS = ("exhaustive", "bow")
 SCORINGS = ("l1", "l2")
@@ -77,7 +77,7 @@ def _kmeans(data: np.ndarray, k: int, iterations: int, rng: np.random.Generator)
     with warnings.catch_warnings():  # an empty cluster is just an unused word
         warnings.filterwarnings("ignore", message="One of the clusters is empty")
         centres, _ = kmeans2(data, kmeans_pp_seeds(data, k, rng), iter=iterations, minit="matrix")
-    return centres.astype(np.float32)
+    return snap(centres, CENTRE_STEP).astype(np.float32)
 
 
 def kmeans_pp_seeds(data: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
@@ -96,6 +96,21 @@ def kmeans_pp_seeds(data: np.ndarray, k: int, rng: np.random.Generator) -> np.nd
         seeds[i] = data[int(np.searchsorted(cumulative, rng.uniform()))]
         np.minimum(nearest, cdist(seeds[i:i + 1], data, metric="sqeuclidean")[0], out=nearest)
     return seeds
+
+
+CENTRE_STEP = 2.0 ** -10
+"""Grid of the vocabulary's centres (descriptor units): a dyadic step, so that with integer descriptors (SIFT's,
+binary bits) every product and partial sum of :func:`nearest_centre` is exact in float64."""
+
+
+def nearest_centre(data: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Index of each row's nearest centre (lowest index on ties): ``argmin |c|^2 - 2 a.c`` in float64. Exact,
+    so the same on every CPU and BLAS kernel, for integer-valued rows and centres on :data:`CENTRE_STEP`
+    (SIFT and binary tiers); learned float descriptors get float64 rounding."""
+    centres = np.asarray(centres, dtype=np.float64)
+    score = np.asarray(data, dtype=np.float64) @ (-2.0 * centres).T
+    score += np.einsum("ij,ij->i", centres, centres)[None, :]
+    return np.argmin(score, axis=1)
 
 
 class VocabularyTree:
@@ -135,7 +150,7 @@ class VocabularyTree:
         for n in np.unique(node):
             idx = np.nonzero(node == n)[0]
             children = level[n * branching:(n + 1) * branching]
-            child[idx] = n * branching + np.argmin(squared_l2(data[idx], children), axis=1)
+            child[idx] = n * branching + nearest_centre(data[idx], children)
         return child
 
     def words(self, data: np.ndarray) -> np.ndarray:
@@ -164,7 +179,7 @@ class BowIndex:
         tree = VocabularyTree.train(data, params.branching, params.depth, params.iterations, rng)
         raw = np.stack([cls._counts(tree, f) for f in features])
         df = (raw > 0).sum(0)
-        idf = np.log((len(features) + 1) / (df + 1)).astype(np.float32)
+        idf = snap(np.log((len(features) + 1) / (df + 1)), UNIT_STEP).astype(np.float32)  # log: CPU-dispatched
         index = cls(tree, idf, np.zeros_like(raw), params)
         index.histograms = np.stack([index._normalise(r) for r in raw])
         return index

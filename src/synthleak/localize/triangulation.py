@@ -76,33 +76,49 @@ class TriangulatedPoint:
     error_px: float
 
 
-def _dlt(projections: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-    rows = np.concatenate([pixels[:, :1] * projections[:, 2] - projections[:, 0],
-                           pixels[:, 1:] * projections[:, 2] - projections[:, 1]])
-    _, _, vt = np.linalg.svd(rows)
-    x = vt[-1]
-    return x[:3] / x[3] if abs(x[3]) > 1e-12 else np.full(3, np.nan)
+def _bearings(pixels: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Unit rays in the camera frame through ``pixels`` (COLMAP pixel convention), elementwise IEEE arithmetic
+    only (no BLAS), so the same bits on every CPU."""
+    x = (pixels[:, 0] - k[0, 2]) / k[0, 0]
+    y = (pixels[:, 1] - k[1, 2]) / k[1, 1]
+    norm = np.sqrt(x * x + y * y + 1.0)
+    return np.stack([x / norm, y / norm, 1.0 / norm], axis=1)
+
+
+def _in_cameras(cams_from_world: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    """(N, 3) camera-frame coordinates of world point ``xyz`` in each of the (N, 4, 4) poses (elementwise)."""
+    r, t = cams_from_world[:, :3, :3], cams_from_world[:, :3, 3]
+    return r[:, :, 0] * xyz[0] + r[:, :, 1] * xyz[1] + r[:, :, 2] * xyz[2] + t
 
 
 def triangulate_track(
     track: list[tuple[int, int]],
     keypoints: list[np.ndarray],
-    projections: np.ndarray,
+    cams_from_world: np.ndarray,
+    k: np.ndarray,
     centres: np.ndarray,
     max_error_px: float,
     min_angle_deg: float,
 ) -> TriangulatedPoint | None:
-    """DLT, then drop observations over ``max_error_px`` (or behind a camera) and re-solve once."""
+    """Multi-view triangulation from bearing vectors (pycolmap's ``triangulate_multi_view_point``: compiled
+    Eigen, the same result on every CPU, where numpy's SVD goes through the host's LAPACK kernels), then drop
+    observations over ``max_error_px`` (or behind a camera) and re-solve once."""
+    import pycolmap
+
     track = list(track)
     for _ in range(2):
         imgs = np.array([i for i, _ in track])
-        px = np.stack([keypoints[i][k] for i, k in track])
-        xyz = _dlt(projections[imgs], px)
-        if not np.all(np.isfinite(xyz)):
+        px = np.stack([keypoints[i][k_] for i, k_ in track])
+        solved = pycolmap.triangulate_multi_view_point([cams_from_world[i][:3] for i in imgs], _bearings(px, k))
+        if solved is None or not np.all(np.isfinite(solved)):
             return None
-        proj = projections[imgs] @ np.append(xyz, 1.0)
-        depth = proj[:, 2]
-        err = np.linalg.norm(proj[:, :2] / np.where(depth > 1e-9, depth, np.nan)[:, None] - px, axis=1)
+        xyz = np.asarray(solved, dtype=np.float64).reshape(3)
+        cam = _in_cameras(cams_from_world[imgs], xyz)
+        depth = cam[:, 2]
+        safe = np.where(depth > 1e-9, depth, np.nan)
+        du = k[0, 0] * cam[:, 0] / safe + k[0, 2] - px[:, 0]
+        dv = k[1, 1] * cam[:, 1] / safe + k[1, 2] - px[:, 1]
+        err = np.sqrt(du * du + dv * dv)
         good = (depth > 1e-9) & (err < max_error_px)
         if good.all():
             rays = xyz - centres[imgs]

@@ -32,6 +32,7 @@ from synthleak.atomic_io import atomic_write_bytes, atomic_write_text
 from synthleak.core.dataset import DatasetError, encode_png, load_sequence, read_json
 from synthleak.core.types import Camera, RenderScene
 from synthleak.geometry.poses import invert, make_pose, transform_points
+from synthleak.portable import snap
 from synthleak.render.dataset import atomic_write_json
 
 ENLARGE = 3
@@ -325,7 +326,8 @@ def ply_text(vertices_mm: np.ndarray, faces: np.ndarray, normals: np.ndarray) ->
         "property float nx\nproperty float ny\nproperty float nz\n"
         f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n"
     )
-    vrows = np.concatenate([vertices_mm, normals], axis=1)
+    # on the printed grid first: a normal of -1e-17 on one CPU and +1e-17 on another prints -0.000000 / 0.000000
+    vrows = snap(np.concatenate([vertices_mm, normals], axis=1), 1e-6)
     vlines = "\n".join(" ".join(f"{x:.6f}" for x in row) for row in vrows)
     flines = "\n".join(f"3 {a} {b} {c}" for a, b, c in np.asarray(faces, dtype=np.int64))
     return header + vlines + ("\n" if len(vrows) else "") + flines + ("\n" if len(faces) else "")

@@ -16,6 +16,7 @@ from synthleak.atomic_io import TEMP_PREFIX, atomic_write_bytes, atomic_write_te
 from synthleak.core.dataset import BOP_DEPTH_SCALE, DatasetError, encode_npy, encode_png, frame_paths, frame_stem
 from synthleak.core.types import Camera, InstanceInfo
 from synthleak.geometry.poses import check_pose, invert, quat_wxyz_from_matrix
+from synthleak.portable import POSE_STEP, snap, snap_pose
 from synthleak.render.base import Frame
 
 
@@ -126,8 +127,8 @@ def _colmap_images(names: list[str], poses: list[np.ndarray]) -> str:
         f"# Number of images: {len(names)}, mean observations per image: 0",
     ]
     for i, (name, pose) in enumerate(zip(names, poses, strict=True)):
-        q = quat_wxyz_from_matrix(pose[:3, :3])
-        t = pose[:3, 3]
+        q = snap(quat_wxyz_from_matrix(pose[:3, :3]), POSE_STEP)
+        t = snap(pose[:3, 3], POSE_STEP)
         values = " ".join(repr(float(x)) for x in (*q, *t))
         lines += [f"{i + 1} {values} 1 {name}", ""]
     return "\n".join(lines) + "\n"
@@ -186,7 +187,7 @@ def write_sequence_metadata(
         }
         entries = []
         for info in instances:
-            cam_from_object = pose @ np.asarray(info.world_from_object, dtype=np.float64)
+            cam_from_object = snap_pose(pose @ np.asarray(info.world_from_object, dtype=np.float64))
             entries.append(
                 {
                     "obj_id": int(info.instance_id),
@@ -218,11 +219,11 @@ def to_object_frame(
         raise ValueError(f"target_instance_id {target_id} is not an instance of the scene")
     world_from_target = np.asarray(instances[target_id].world_from_object, dtype=np.float64)
     target_from_world = invert(world_from_target)
-    poses = [np.asarray(p) @ world_from_target for p in cam_from_world]
+    poses = [snap_pose(np.asarray(p) @ world_from_target) for p in cam_from_world]
     moved = []
     for iid in sorted(instances):
         info = instances[iid]
-        pose = np.eye(4) if iid == target_id else target_from_world @ np.asarray(info.world_from_object)
+        pose = np.eye(4) if iid == target_id else snap_pose(target_from_world @ np.asarray(info.world_from_object))
         moved.append(InstanceInfo(**{**info.__dict__, "world_from_object": pose}))
     return poses, moved
 

@@ -24,6 +24,7 @@ from synthleak.core.dataset import BOP_DEPTH_SCALE, frame_complete, frame_name, 
 from synthleak.core.types import Camera, RenderScene
 from synthleak.errors import StageError
 from synthleak.executors import Executor, LocalExecutor, chunks
+from synthleak.portable import snap_pose
 from synthleak.render.bop_full import write_bop_extras
 from synthleak.render.dataset import (
     atomic_write_json,
@@ -205,6 +206,7 @@ def plan_sequence(job: SequenceJob, config: StudyConfig, scene: RenderScene | No
         poses = [closeups.get(f, p) for f, p in zip(frames, poses, strict=True)]
         if closeups:
             split["closeup"] = sorted(closeups)
+    poses = [snap_pose(p) for p in poses]  # the rendered poses are the written ones, on every CPU
     if kind == "attacker":
         stored_poses, instances = to_object_frame(poses, scene.instances, scene.target_instance_id)
     else:

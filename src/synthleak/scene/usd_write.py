@@ -27,12 +27,13 @@ from pxr import Gf, Kind, Sdf, Tf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 from synthleak.assets.mesh import TexturedPart
 from synthleak.core.types import Light
 from synthleak.core.usd_read import NS
+from synthleak.portable import LENGTH_STEP_M, UNIT_STEP, snap, snap_pose
 from synthleak.scene.spec import PlacedObject, SceneSpec
 from synthleak.scene.texture_store import store_texture
 
 
 def _usd_matrix(pose: np.ndarray) -> Gf.Matrix4d:
-    return Gf.Matrix4d(np.asarray(pose, dtype=np.float64).T.tolist())
+    return Gf.Matrix4d(snap_pose(pose).T.tolist())
 
 
 def _json_default(value: Any) -> Any:
@@ -102,7 +103,7 @@ def _write_material(stage: Usd.Stage, path: str, part: TexturedPart, stage_dir: 
 
 
 def _write_mesh(stage: Usd.Stage, path: str, part: TexturedPart, material: UsdShade.Material) -> None:
-    verts = np.asarray(part.vertices, dtype=np.float32)
+    verts = snap(part.vertices, LENGTH_STEP_M).astype(np.float32)
     faces = np.asarray(part.faces, dtype=np.int32)
     mesh = UsdGeom.Mesh.Define(stage, path)
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(verts))
@@ -113,7 +114,7 @@ def _write_mesh(stage: Usd.Stage, path: str, part: TexturedPart, material: UsdSh
     st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
         "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex
     )
-    st.Set(Vt.Vec2fArray.FromNumpy(np.asarray(part.uv, dtype=np.float32)))
+    st.Set(Vt.Vec2fArray.FromNumpy(snap(part.uv, UNIT_STEP).astype(np.float32)))
     mesh.GetPrim().CreateAttribute(NS + "partName", Sdf.ValueTypeNames.String, custom=True).Set(part.name)
     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
 
@@ -132,7 +133,7 @@ def _write_instance(stage: Usd.Stage, path: str, obj: PlacedObject, stage_dir: P
         ("role", Sdf.ValueTypeNames.String, obj.role),
         ("support", Sdf.ValueTypeNames.String, obj.support),
         ("variantParams", Sdf.ValueTypeNames.String, to_json(obj.variant_params)),
-        ("extents", Sdf.ValueTypeNames.Double3, Gf.Vec3d(*map(float, obj.object_extents()))),
+        ("extents", Sdf.ValueTypeNames.Double3, Gf.Vec3d(*map(float, snap(obj.object_extents(), LENGTH_STEP_M)))),
     ]
     for name, type_name, value in attrs:
         prim.CreateAttribute(NS + name, type_name, custom=True).Set(value)

@@ -19,7 +19,7 @@ from synthleak.evaluate.plots import plot_defense_tradeoff, plot_placement_cdfs,
 from synthleak.evaluate.query_log import defense_queries, read_query_log
 from synthleak.evaluate.room_plots import room_plots
 from synthleak.evaluate.study_report import report_markdown, side_by_side_sections, sweep_section, world_sweep_section
-from synthleak.evaluate.tables import presence_pr_per_room
+from synthleak.evaluate.tables import plain, presence_pr_per_room
 from synthleak.evaluate.world_summary import world_summary
 from synthleak.study.attack import attack_rows
 from synthleak.study.context import Stage, StudyContext, Unit
@@ -53,12 +53,12 @@ def write_report(ctx: StudyContext, rows: list[dict[str, Any]], sweep_rows: list
     index = read_index(paths.dataset / "stages")
     scenes = {room["name"]: paths.scene(room["name"]) for room in index["rooms"]}
     world = world_summary(config, index["rooms"], scenes)
-    atomic_write_text(paths.results / "world.json", json.dumps(world, indent=1))
+    atomic_write_text(paths.results / "world.json", json.dumps(plain(world), indent=1))
     genuine = genuine_localization(logs, scenes)
     tradeoff = defense_tradeoff(defense_queries(logs), config.defense.sweep_fractions,
                                 config.defense.sweep_min_instances)
-    atomic_write_text(paths.results / "genuine_localization.json", json.dumps(genuine, indent=1))
-    atomic_write_text(paths.results / "defense_tradeoff.json", json.dumps(tradeoff, indent=1, default=str))
+    atomic_write_text(paths.results / "genuine_localization.json", json.dumps(plain(genuine), indent=1))
+    atomic_write_text(paths.results / "defense_tradeoff.json", json.dumps(plain(tradeoff), indent=1, default=str))
     plots = [plot_presence_pr(presence_pr_per_room(rows), paths.plots / "presence_pr.png"),
              plot_placement_cdfs(rows, paths.plots / "placement_cdf.png"),
              plot_defense_tradeoff(tradeoff, paths.plots / "defense_tradeoff.png"),
