@@ -14,12 +14,14 @@ from synthleak.localize.matching import match_features
 
 
 def _reference(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool) -> set[tuple[int, int]]:
-    """Lowe's test on true L2 (float) or Hamming (uint8) distances with a full sort, the slow obvious way."""
+    """Lowe's test on true L2 distances between unit rows (float) or Hamming (uint8) distances with a full sort,
+    the slow obvious way."""
     if a.dtype == np.uint8:
         bits_a, bits_b = np.unpackbits(a, axis=1), np.unpackbits(b, axis=1)
         dist = (bits_a[:, None, :] != bits_b[None]).sum(-1).astype(np.float64)
     else:
-        dist = np.sqrt(((a[:, None, :].astype(np.float64) - b[None].astype(np.float64)) ** 2).sum(-1))
+        a, b = (x.astype(np.float64) / np.sqrt((x.astype(np.float64) ** 2).sum(1, keepdims=True)) for x in (a, b))
+        dist = np.sqrt(((a[:, None, :] - b[None]) ** 2).sum(-1))
     out = set()
     for i, row in enumerate(dist):
         order = np.argsort(row, kind="stable")
@@ -43,6 +45,22 @@ def test_float_matcher_equals_reference(ratio: float, mutual: bool) -> None:
     assert {tuple(m) for m in got.tolist()} == _reference(a, b, ratio, mutual)
     if ratio == 0.8 and mutual:
         assert len(got) >= 55  # the noisy copies match
+
+
+def test_sift_distances_are_exact_and_scale_free() -> None:
+    """SIFT's integer descriptors: the unit-row distances do not depend on BLAS summation order (a reversed
+    column order gives the same bytes) and equal those of the rows normalised in float64 to rounding."""
+    from synthleak.localize.matching import unit_squared_l2
+
+    rng = np.random.default_rng(2)
+    a = rng.integers(0, 256, size=(300, 128)).astype(np.float32)
+    b = rng.integers(0, 256, size=(200, 128)).astype(np.float32)
+    got = unit_squared_l2(a, b)
+    assert got.dtype == np.float64
+    assert unit_squared_l2(a[:, ::-1].copy(), b[:, ::-1].copy()).tobytes() == got.tobytes()
+    unit_a, unit_b = (x / np.linalg.norm(x.astype(np.float64), axis=1, keepdims=True) for x in (a, b))
+    np.testing.assert_allclose(got, ((unit_a[:, None] - unit_b[None]) ** 2).sum(-1), atol=1e-12)
+    np.testing.assert_array_equal(unit_squared_l2(0.5 * a, b), got)  # scale-free: a/2 is the same direction
 
 
 def test_duplicate_descriptors_match_once_like_argmin() -> None:
