@@ -6,11 +6,11 @@ import argparse
 import json
 import signal
 import sys
-import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from synthleak.errors import SynthleakError
+from synthleak.interrupt import Stopped, received_stop_signal, signal_name, stop_on_signals
 
 
 def _cmd_objects(args: argparse.Namespace) -> None:
@@ -101,7 +101,14 @@ def _cmd_map(args: argparse.Namespace) -> None:
 
 
 def _cmd_serve(args: argparse.Namespace) -> None:
+    import uvicorn.server
+
     from synthleak.localize.server import serve
+
+    # uvicorn shuts down gracefully on SIGINT and SIGTERM, then raises the signal again for our handler; have it
+    # treat SIGHUP alike (raised inside its event loop, Stopped would end it with a traceback of the lifespan task)
+    if hasattr(signal, "SIGHUP") and signal.SIGHUP not in uvicorn.server.HANDLED_SIGNALS:
+        uvicorn.server.HANDLED_SIGNALS = (*uvicorn.server.HANDLED_SIGNALS, signal.SIGHUP)
 
     serve(Path(args.map), host=args.host, port=args.port, config=_study_config(args.config).localize,
           defense=_defense(args), decision_log=Path(args.decision_log) if args.decision_log else None,
@@ -253,21 +260,47 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+RESUMABLE = ("study", "generate", "render")
+"""Commands whose ``--out`` a rerun resumes (the stop message says so)."""
+PRELOAD = ("study", "serve", "map", "localize")
+"""Commands that import pycolmap anyway: it is imported before the stop handlers, which it would replace
+(:func:`synthleak.interrupt.preload_native_handlers`); the others do not pay for the import."""
+
+
 def _exit_on_sigterm(signum: int, frame: object) -> None:
-    """SIGTERM unwinds like Ctrl-C: worker pools are stopped, finished files stay, a rerun resumes."""
-    raise SystemExit(128 + signum)
+    """A stop signal unwinds like Ctrl-C: worker pools are stopped, finished files stay, a rerun resumes."""
+    raise Stopped(signum)
+
+
+def _stopped(args: argparse.Namespace, signum: int) -> int:
+    """Print the one line of a stopped command; its exit status, ``128 + signum``."""
+    message = f"synthleak {args.command}: stopped by {signal_name(signum)}"
+    if args.command in RESUMABLE and getattr(args, "out", None):
+        message += f"; finished work is kept in {args.out}, rerun the same command to resume"
+    print(message, file=sys.stderr)
+    return 128 + signum
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command. SIGTERM, SIGINT and SIGHUP stop it (:mod:`synthleak.interrupt`): its workers are
+    ended, finished files stay, and it exits with ``128 + signum`` after one line on stderr."""
     args = build_parser().parse_args(argv)
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _exit_on_sigterm)
-    try:
-        args.handler(args)
-    except (SynthleakError, ValueError, OSError) as exc:  # our errors name the file and the field
-        message = " ".join(str(exc).split())  # one line, whatever the message holds
-        print(f"synthleak {args.command}: error: {message}", file=sys.stderr)
-        return 2
+    with stop_on_signals(preload=args.command in PRELOAD):
+        try:
+            args.handler(args)
+        except BaseException as exc:
+            # Stopped, or what a library made of it (Ray turns a SystemExit raised in its calls into
+            # SystemExit(1)), or the error of a worker killed by the same signal (sent to the process group)
+            signum = exc.signum if isinstance(exc, Stopped) else received_stop_signal()
+            if signum is None and isinstance(exc, KeyboardInterrupt):  # no handler of ours (not the main thread)
+                signum = signal.SIGINT
+            if signum is not None:
+                return _stopped(args, signum)
+            if not isinstance(exc, (SynthleakError, ValueError, OSError)):
+                raise
+            message = " ".join(str(exc).split())  # our errors name the file and the field: one line
+            print(f"synthleak {args.command}: error: {message}", file=sys.stderr)
+            return 2
     return 0
 
 

@@ -6,17 +6,25 @@ seeded by what it computes, never by when or where it runs). Tasks must be pickl
 functions with picklable arguments; they read their inputs from, and may write their outputs to, the
 study folder, which is therefore shared by every worker (a local disk for local workers, a shared file
 system mounted at the same path on every node for a Ray cluster: see ``docs/scaling.md``).
+
+An executor used as a ``with`` block that is left by an exception (a failed task, Ctrl-C, SIGTERM: see
+:mod:`synthleak.interrupt`) ends its workers at once instead of waiting for their running tasks; workers also
+end by themselves when their driver dies (:func:`worker_init`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
+import threading
+import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any, TypeVar
 
 from synthleak.errors import MissingDependencyError, SynthleakError
+from synthleak.interrupt import guard_worker, reassert_stop_handlers
 from synthleak.progress import progress_display
 
 T = TypeVar("T")
@@ -44,6 +52,14 @@ def limit_worker_threads(threads: int) -> None:
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(threads)
+
+
+def worker_init(threads: int, parent_pid: int, parent_is_main_thread: bool = True) -> None:
+    """The initializer of a local pool's workers: stop with the driver (:func:`~synthleak.interrupt.guard_worker`:
+    the driver ends them on a signal, and they die with it if it is killed outright), then
+    :func:`limit_worker_threads`."""
+    guard_worker(parent_pid, parent_is_main_thread)
+    limit_worker_threads(threads)
 
 
 def worker_thread_cap() -> int | None:
@@ -86,7 +102,14 @@ class Executor:
     def __enter__(self) -> Executor:
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: Any) -> None:
+        if exc_type is None:
+            self.close()
+        else:  # the caller is failing or being stopped: nobody will use the running tasks' results
+            self.terminate()
+
+    def terminate(self) -> None:
+        """End the workers now, without waiting for their running tasks (defaults to :meth:`close`)."""
         self.close()
 
 
@@ -95,10 +118,31 @@ def _describe(fn: Callable, item: Any) -> str:
     return f"{getattr(fn, '__name__', fn)}({text[:200]}{'...' if len(text) > 200 else ''})"
 
 
+def kill_pool(pool: ProcessPoolExecutor, timeout: float = 5.0) -> None:
+    """Kill a process pool's workers (SIGKILL) without waiting for their tasks, and reap them.
+
+    The tasks not started are cancelled first, and the pool's manager thread is given a moment to drop them:
+    Python 3.11's fails with InvalidStateError (a thread traceback on stderr) on a cancelled future it still
+    holds when it finds its workers dead."""
+    manager = getattr(pool, "_executor_manager_thread", None)  # shutdown() forgets both
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    deadline = time.monotonic() + 2.0
+    while (manager is not None and manager.is_alive() and time.monotonic() < deadline
+           and any(item.future.cancelled() for item in list(getattr(manager, "pending_work_items", {}).values()))):
+        time.sleep(0.01)
+    processes = [p for p in processes if p.is_alive()]
+    for process in processes:
+        process.kill()
+    for process in processes:  # reap them: gone, not zombies, when this returns
+        process.join(timeout)
+
+
 class LocalExecutor(Executor):
     """``workers`` processes on this machine (``workers <= 1``: serially in this process, no pool).
 
-    The pool is started on first use and kept for the executor's life (``close()`` or ``with``)."""
+    The pool is started on first use and kept for the executor's life (``close()`` or ``with``; a ``with``
+    block left by an exception kills the workers: :meth:`terminate`)."""
 
     def __init__(self, workers: int = 1, start_method: str = START_METHOD) -> None:
         if int(workers) < 1:
@@ -110,14 +154,18 @@ class LocalExecutor(Executor):
     def _get_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
             ctx = multiprocessing.get_context(self.start_method)
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=limit_worker_threads,
-                                             initargs=(threads_per_worker(self.workers),))
+            # processes are started by the thread that submits (the one calling map): PR_SET_PDEATHSIG would
+            # tie them to it, so only when it is the main thread (worker_init's watchdog thread in any case)
+            main = threading.current_thread() is threading.main_thread()
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=worker_init,
+                                             initargs=(threads_per_worker(self.workers), os.getpid(), main))
         return self._pool
 
     def map(self, fn: Callable[[T], R], items: Iterable[T], description: str = "tasks",
             progress: bool = False) -> list[R]:
         items = list(items)
         results: list[Any] = [None] * len(items)
+        reassert_stop_handlers()  # in case something since replaced them (a no-op outside the CLI)
         with progress_display(progress and bool(items)) as bar:
             task = bar.add_task(description, total=len(items))
             if self.workers <= 1 or len(items) <= 1:
@@ -125,10 +173,14 @@ class LocalExecutor(Executor):
                     results[i] = fn(item)
                     bar.advance(task)
                 return results
-            pool = self._get_pool()
-            futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
-            pending = set(futures)
+            futures: dict[Any, int] = {}
+            pending: set[Any] = set()
             try:
+                pool = self._get_pool()
+                for i, item in enumerate(items):
+                    future = pool.submit(fn, item)
+                    futures[future] = i
+                    pending.add(future)
                 while pending:
                     done, pending = wait(pending, return_when=FIRST_COMPLETED)
                     for future in done:
@@ -140,22 +192,22 @@ class LocalExecutor(Executor):
                                                 f"{type(exc).__name__}: {exc}") from exc
                         bar.advance(task)
             except BaseException as exc:
-                for future in pending:
-                    future.cancel()
-                if not isinstance(exc, Exception):  # Ctrl-C, SIGTERM (SystemExit): stop the workers now
+                if not isinstance(exc, Exception):  # Ctrl-C, SIGTERM (Stopped): stop the workers now
                     self.terminate()
+                else:  # a failed task: what has not started will not, the pool stays usable
+                    for future in pending:
+                        future.cancel()
                 raise
         return results
 
     def terminate(self) -> None:
-        """Kill the workers without waiting for their running tasks (an interrupted study resumes later)."""
-        if self._pool is None:
-            return
-        for process in list(getattr(self._pool, "_processes", {}).values()):
-            if process.is_alive():
-                process.terminate()
-        self._pool.shutdown(wait=False, cancel_futures=True)
-        self._pool = None
+        """Kill the workers without waiting for their running tasks (an interrupted study resumes later).
+
+        SIGKILL, not SIGTERM: nothing a task imported can catch it, and files are written atomically (a
+        killed writer leaves a ``.tmp-*`` file at worst, never a partial result under its real name)."""
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            kill_pool(pool)
 
     def close(self) -> None:
         if self._pool is not None:
@@ -193,6 +245,7 @@ class RayExecutor(Executor):
             if env:
                 kwargs["runtime_env"] = {"env_vars": env}
             ray.init(**kwargs)
+            reassert_stop_handlers()  # ray.init replaced our SIGTERM handler with sys.exit(15)
             self._started = True
         self.workers = int(ray.cluster_resources().get("CPU", 1))
         self.num_cpus_per_task = num_cpus_per_task
@@ -202,6 +255,7 @@ class RayExecutor(Executor):
             progress: bool = False) -> list[R]:
         ray = self._ray
         items = list(items)
+        reassert_stop_handlers()
         remote = self._remote.get(fn)
         if remote is None:
             remote = self._remote[fn] = ray.remote(num_cpus=self.num_cpus_per_task, max_retries=1)(fn)
@@ -211,19 +265,28 @@ class RayExecutor(Executor):
         pending = list(refs)
         with progress_display(progress and bool(items)) as bar:
             task = bar.add_task(description, total=len(items))
-            while pending:
-                done, pending = ray.wait(pending, num_returns=1)
-                for ref in done:
-                    i = index[ref]
-                    try:
-                        results[i] = ray.get(ref)
-                    except Exception as exc:
-                        for other in pending:
-                            ray.cancel(other)
-                        raise ExecutorError(f"task {_describe(fn, items[i])} failed on Ray: "
-                                            f"{type(exc).__name__}: {exc}") from exc
-                    bar.advance(task)
+            try:
+                while pending:
+                    done, pending = ray.wait(pending, num_returns=1)
+                    for ref in done:
+                        i = index[ref]
+                        try:
+                            results[i] = ray.get(ref)
+                        except Exception as exc:
+                            self._cancel(pending, force=False)
+                            raise ExecutorError(f"task {_describe(fn, items[i])} failed on Ray: "
+                                                f"{type(exc).__name__}: {exc}") from exc
+                        bar.advance(task)
+            except BaseException as exc:
+                if not isinstance(exc, Exception):  # Ctrl-C, SIGTERM: stop the running tasks too (a cluster
+                    self._cancel(pending, force=True)  # joined with --address outlives this driver)
+                raise
         return results
+
+    def _cancel(self, refs: Iterable[Any], force: bool) -> None:
+        for ref in refs:  # an error: finished meanwhile, or Ray going down, nothing left to stop
+            with contextlib.suppress(Exception):
+                self._ray.cancel(ref, force=force)
 
     def close(self) -> None:
         if self._started:

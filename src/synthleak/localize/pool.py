@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import multiprocessing
-import signal
+import os
 import threading
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -19,7 +19,8 @@ from pathlib import Path
 
 from synthleak.config import LocalizeConfig
 from synthleak.core.types import Camera
-from synthleak.executors import START_METHOD, limit_worker_threads
+from synthleak.executors import START_METHOD, kill_pool, limit_worker_threads
+from synthleak.interrupt import guard_worker
 from synthleak.localize.defense import DefensePolicy
 from synthleak.localize.images import MAX_QUERY_PIXELS
 from synthleak.localize.localizer import LocalizationResult, Localizer, log_decision
@@ -35,8 +36,10 @@ class WorkerCrashedError(RuntimeError):
 
 
 def _init_worker(map_dir: str, config: LocalizeConfig | None, defense: DefensePolicy | None,
-                 weights_dir: str | None, threads: int, barrier: threading.Barrier) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C stops the server, which stops the pool
+                 weights_dir: str | None, threads: int, barrier: threading.Barrier, parent_pid: int,
+                 parent_is_main_thread: bool) -> None:
+    # Ctrl-C and SIGHUP stop the server, which stops the pool; the worker dies with the server if it is killed
+    guard_worker(parent_pid, parent_is_main_thread)
     limit_worker_threads(threads)
     import synthleak.localize  # noqa: F401  (quiets COLMAP's per-extractor log lines)
 
@@ -88,8 +91,9 @@ class LocalizerPool:
     def _start(self) -> ProcessPoolExecutor:
         """A started pool: every process has loaded its map (map errors surface here, not in a query)."""
         context = multiprocessing.get_context(START_METHOD)
+        main = threading.current_thread() is threading.main_thread()  # a restart runs in a thread of asyncio's
         pool = ProcessPoolExecutor(self.workers, mp_context=context, initializer=_init_worker,
-                                   initargs=(*self._initargs, context.Barrier(self.workers)))
+                                   initargs=(*self._initargs, context.Barrier(self.workers), os.getpid(), main))
         try:
             for future in [pool.submit(_ready) for _ in range(self.workers)]:
                 future.result()
@@ -122,8 +126,15 @@ class LocalizerPool:
     def close(self) -> None:
         self._pool.shutdown(wait=True, cancel_futures=True)
 
+    def terminate(self) -> None:
+        """Kill the processes without waiting for their running queries (the server is being stopped)."""
+        kill_pool(self._pool)
+
     def __enter__(self) -> LocalizerPool:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:  # stopped by a signal (uvicorn re-raises the one it shut down on) or failing: do not wait
+            self.terminate()

@@ -14,6 +14,7 @@ from synthleak.study.attack import AttackStage
 from synthleak.study.context import Stage, StudyContext
 from synthleak.study.features import FeaturesStage
 from synthleak.study.local_models import SfmStage
+from synthleak.study.lock import study_lock
 from synthleak.study.maps import MapsStage
 from synthleak.study.paths import StudyPaths
 from synthleak.study.queries import QueriesStage
@@ -50,16 +51,25 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
 
     Rendering, maps and queries run over ``executor``: ``"local"`` with ``workers`` processes, ``"ray"``
     (``address``: a running cluster, e.g. ``"auto"``; None starts a local Ray), or an
-    :class:`~synthleak.executors.Executor`. Result files are the same bytes whatever the executor."""
-    if isinstance(executor, str):
-        with make_executor(executor, workers, address) as pool:
-            return run_study(config, out, force, server_url, progress, workers, pool)
+    :class:`~synthleak.executors.Executor`. Result files are the same bytes whatever the executor.
 
+    One study at a time per folder: while this runs it holds ``out/.study.lock``, and another ``run_study``
+    on ``out`` (any process) raises :class:`~synthleak.study.lock.StudyLockedError` at once. Interrupted
+    (Ctrl-C, SIGTERM), it ends its workers; what was finished is kept, and a rerun resumes."""
     forced = check_force(force)
     check_config(config, config.name)  # a config built in Python fails here, not after the renders
     check_tiers_installed(config.localize.tiers)
     paths = StudyPaths(Path(out))
     paths.root.mkdir(parents=True, exist_ok=True)
+    with study_lock(paths.root):  # before any worker starts: a second run is refused at once
+        if isinstance(executor, str):
+            with make_executor(executor, workers, address) as pool:
+                return _run_stages(config, paths, forced, server_url, progress, pool)
+        return _run_stages(config, paths, forced, server_url, progress, executor)
+
+
+def _run_stages(config: StudyConfig, paths: StudyPaths, forced: frozenset[str], server_url: str | None,
+                progress: bool, executor: Executor) -> Path:
     ctx = StudyContext(config, paths, forced, progress, executor, server_url)
     for stage in study_stages(ctx):
         start = time.perf_counter()
