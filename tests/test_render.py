@@ -230,7 +230,8 @@ def test_colmap_export_reads_back_exactly(rendered_room, room):
     for image in rec.images.values():
         index = int(image.name.removesuffix(".png"))
         got = image.cam_from_world().matrix()
-        assert np.abs(got - poses[index][:3]).max() < 1e-9
+        # images.txt holds q and t on the 1e-9 grid (synthleak.portable.POSE_STEP): R, quadratic in q, within 4 steps
+        assert np.abs(got - poses[index][:3]).max() < 5e-9
     seq = load_sequence(rendered_room)
     assert seq.kind == "scene" and len(seq.frames) == 6
     assert all(np.abs(seq.cam_from_world[f] - poses[i]).max() < 1e-12 for i, f in enumerate(seq.frames))

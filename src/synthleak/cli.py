@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import signal
 import sys
 from collections.abc import Callable, Sequence
@@ -14,18 +16,57 @@ from synthleak.interrupt import Stopped, received_stop_signal, signal_name, stop
 
 
 def _cmd_objects(args: argparse.Namespace) -> None:
-    from rich.console import Console
-
-    from synthleak.assets.catalog import objects_rows, objects_table
+    from synthleak.assets.catalog import OBJECTS_COLUMNS, objects_cells, objects_rows, objects_title
     from synthleak.assets.library import by_role, load_library
+    from synthleak.listing import print_rows
 
     library = load_library()
     if args.role:
         library = by_role(library, args.role)
-    if args.json:
-        print(json.dumps(objects_rows(library), indent=2))
-    else:
-        Console().print(objects_table(library))
+    print_rows(OBJECTS_COLUMNS, objects_cells(library), json_out=args.json, title=objects_title(library),
+               records=objects_rows(library))
+
+
+PRESETS_COLUMNS = ("name", "extends", "description", "renderer", "tiers", "measured cost")
+
+
+def _cmd_presets(args: argparse.Namespace) -> int:
+    """List the presets; one that does not load is listed, then named on stderr, and the exit status is 2."""
+    import dataclasses
+
+    from synthleak.config import list_presets
+    from synthleak.listing import print_rows
+    from synthleak.paths import render_configs_dir
+
+    presets = list_presets()
+    rows = [[p.name, p.extends, f"error: {p.error}" if p.error else p.description or None, p.renderer,
+             p.tiers or None, str(p.cost) if p.cost else None] for p in presets]
+    print_rows(PRESETS_COLUMNS, rows, json_out=args.json, title=f"{len(presets)} presets in {render_configs_dir()}",
+               records=[dataclasses.asdict(p) for p in presets])
+    sys.stdout.flush()  # the listing before the errors, where both go to one terminal
+    for p in presets:
+        if p.error:
+            print(f"synthleak {args.command}: error: {p.error}", file=sys.stderr)
+    return 2 if any(p.error for p in presets) else 0
+
+
+TIERS_COLUMNS = ("name", "features / matcher", "matching", "min inliers", "max keypoints", "PnP px", "pip extra")
+
+
+def _cmd_tiers(args: argparse.Namespace) -> None:
+    from synthleak.listing import print_rows
+    from synthleak.localize.tiers import list_tiers
+
+    def matching(t: dict) -> str:
+        if t["learned_matcher"]:
+            return f"score > {t['match_threshold']:g}, top-k retrieved"
+        return f"ratio {t['ratio']:g}" + (", mutual" if t["mutual"] else "")
+
+    tiers = list_tiers()
+    rows = [[t["name"], t["description"] or None, matching(t), t["min_inliers"], t["max_keypoints"] or None,
+             t["pnp_max_error_px"], "learned" if t["needs_torch"] else None] for t in tiers]
+    print_rows(TIERS_COLUMNS, rows, json_out=args.json, title="localization feature tiers (least to most robust)",
+               records=tiers)
 
 
 def _cmd_scenes(args: argparse.Namespace) -> None:
@@ -147,6 +188,30 @@ def _cmd_study(args: argparse.Namespace) -> None:
     print(f"report written to {report}")
 
 
+def _cmd_report(args: argparse.Namespace) -> None:
+    from synthleak.evaluate.results_page import (
+        HEADLINE_COLUMNS,
+        results_summary,
+        write_readme_presets,
+        write_results_page,
+    )
+    from synthleak.listing import print_rows
+
+    if args.readme and not args.docs:
+        raise ValueError("--readme: needs --docs (the README's presets table reads the pages' index)")
+    if args.docs:
+        page = write_results_page(Path(args.study), Path(args.docs))
+        print(f"wrote {page}, {page.with_suffix('.json').name}, {page.stem}/ and index.json", file=sys.stderr)
+        if args.readme:
+            write_readme_presets(Path(args.readme), page.parent / "index.json")
+            print(f"updated the presets table of {args.readme}", file=sys.stderr)
+    summary = results_summary(Path(args.study))
+    headline = summary["headline"]
+    print_rows(HEADLINE_COLUMNS, [[r[c] for c in HEADLINE_COLUMNS] for r in headline], json_out=args.json,
+               title=f"{summary['config']}: presence and placement at 10°/0.25 m ({summary['aligner']})",
+               records=headline)
+
+
 TIERS_HELP = "{tiers}"
 """Placeholder in a help text for the registered feature tiers (:func:`tiers_help`)."""
 
@@ -157,7 +222,20 @@ def tiers_help() -> str:
 
     torch = [name for name, tier in TIERS.items() if tier.needs_torch]
     extra = f" ({', '.join(torch)}: the [learned] extra, see README)" if torch else ""
-    return f"feature tier: {', '.join(TIERS)}{extra}"
+    return f"feature tier: {', '.join(TIERS)}{extra}; `synthleak tiers` describes them"
+
+
+def version() -> str:
+    """The installed distribution's version (``synthleak.__version__`` where synthleak is not installed)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed
+
+    try:
+        return installed("synthleak")
+    except PackageNotFoundError:
+        from synthleak import __version__
+
+        return __version__
 
 
 class _HelpFormatter(argparse.HelpFormatter):
@@ -171,17 +249,27 @@ class _HelpFormatter(argparse.HelpFormatter):
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="synthleak", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"synthleak {version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    def command(name: str, handler: Callable[[argparse.Namespace], None], help_text: str):
-        p = sub.add_parser(name, help=help_text, description=help_text, formatter_class=_HelpFormatter)
+    def command(name: str, handler: Callable[[argparse.Namespace], int | None], help_text: str, more: str = ""):
+        p = sub.add_parser(name, help=help_text, description=help_text + more, formatter_class=_HelpFormatter)
         p.set_defaults(handler=handler)
         p.add_argument("--quiet", action="store_true", help="no progress bars")
         return p
 
-    p = command("objects", _cmd_objects, "list the object library's models")
+    listing = ("; a table on a terminal, else a header line and a line per row, tab-separated, values whole; "
+               "--json: a JSON list, an object per row")
+    p = command("objects", _cmd_objects, "list the object library's models", listing)
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.add_argument("--role", choices=["furniture", "prop"], help="only the furniture or only the props")
+
+    p = command("presets", _cmd_presets, "list the study configs of render_configs/ and their measured cost",
+                f"{listing}. A config that does not load is listed with its error (exit status 2)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+
+    p = command("tiers", _cmd_tiers, "list the localization feature tiers (map --tier, [localize] tiers)", listing)
+    p.add_argument("--json", action="store_true", help="machine-readable output")
 
     p = command("scenes", _cmd_scenes, "write the USD stages of a study (rooms + attacker setups)")
     p.add_argument("config", help="config path or name in render_configs/ (e.g. ci-tiny)")
@@ -244,6 +332,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--defense", action="store_true", help="turn the query defense on (X, k from the config)")
     p.add_argument("--verbose", action="store_true", help="also print inlier counts (server-side information)")
 
+    p = command("report", _cmd_report, "a finished study's headline figures; --docs: its docs/results page",
+                f"{listing}. --docs PAGE writes the page, its summary (PAGE.json) and figures (PAGE's stem folder) "
+                "and records the preset's wall time in index.json beside it")
+    p.add_argument("study", help="a finished study folder (synthleak study ... --out STUDY)")
+    p.add_argument("--docs", metavar="PAGE", help="write the results page, e.g. docs/results/study-small.md")
+    p.add_argument("--readme", metavar="README", help="also regenerate the presets table of this README")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+
     p = command("study", _cmd_study, "run (or resume) a whole study: stages, renders, maps, attack, report")
     p.add_argument("config")
     p.add_argument("--out", required=True)
@@ -281,13 +377,24 @@ def _stopped(args: argparse.Namespace, signum: int) -> int:
     return 128 + signum
 
 
+def _closed_pipe() -> int:
+    """stdout's reader went away (``synthleak objects | head -1``): exit quietly, as a process killed by SIGPIPE
+    would (``128 + SIGPIPE``); stdout goes to devnull so that the interpreter's last flush does not fail again."""
+    with contextlib.suppress(OSError, ValueError):  # no file descriptor (captured stdout)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    return 128 + getattr(signal, "SIGPIPE", 13)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run one command. SIGTERM, SIGINT and SIGHUP stop it (:mod:`synthleak.interrupt`): its workers are
-    ended, finished files stay, and it exits with ``128 + signum`` after one line on stderr."""
+    """Run one command; its exit status (a handler may return one; errors: 2 after one line on stderr). SIGTERM,
+    SIGINT and SIGHUP stop it (:mod:`synthleak.interrupt`): its workers are ended, finished files stay, and it
+    exits with ``128 + signum`` after one line on stderr. A closed stdout pipe ends it quietly
+    (:func:`_closed_pipe`)."""
     args = build_parser().parse_args(argv)
     with stop_on_signals(preload=args.command in PRELOAD):
         try:
-            args.handler(args)
+            status = args.handler(args)
+            sys.stdout.flush()  # a closed pipe fails here, not in the interpreter's last flush
         except BaseException as exc:
             # Stopped, or what a library made of it (Ray turns a SystemExit raised in its calls into
             # SystemExit(1)), or the error of a worker killed by the same signal (sent to the process group)
@@ -296,12 +403,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 signum = signal.SIGINT
             if signum is not None:
                 return _stopped(args, signum)
+            if isinstance(exc, BrokenPipeError):
+                return _closed_pipe()
             if not isinstance(exc, (SynthleakError, ValueError, OSError)):
                 raise
             message = " ".join(str(exc).split())  # our errors name the file and the field: one line
             print(f"synthleak {args.command}: error: {message}", file=sys.stderr)
             return 2
-    return 0
+    return status or 0
 
 
 if __name__ == "__main__":

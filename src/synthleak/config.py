@@ -10,14 +10,15 @@ refused.
 from __future__ import annotations
 
 import dataclasses
+import json
 import tomllib
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-from synthleak.errors import ConfigError
-from synthleak.paths import render_configs_dir
+from synthleak.errors import ConfigError, SynthleakError
+from synthleak.paths import render_configs_dir, results_index_path
 from synthleak.schema import Rule, anything, at_least, each, from_table, one_of, ordered, within
 
 
@@ -416,3 +417,102 @@ def config_to_dict(config: StudyConfig) -> dict[str, Any]:
         return value
 
     return plain(dataclasses.asdict(config))
+
+
+# ------------------------------------------------------------------------------------------------- presets
+@dataclass(frozen=True)
+class PresetCost:
+    """A preset's measured cost: one entry of ``docs/results/index.json``'s ``presets``."""
+
+    wall_s: float
+    """Wall time of the whole study (seconds)."""
+    cores: int | None = None
+    cpu: str = ""
+    commit: str = ""
+    page: str = ""
+    """The results page, relative to the repository root."""
+
+    def __str__(self) -> str:
+        """``11.8 min (2 cores)``."""
+        if self.wall_s < 60:
+            wall = f"{self.wall_s:.0f} s"
+        elif self.wall_s < 7200:
+            wall = f"{self.wall_s / 60:.1f} min"
+        else:
+            wall = f"{self.wall_s / 3600:.1f} h"
+        if self.cores is None:
+            return wall
+        return f"{wall} ({self.cores} core{'' if self.cores == 1 else 's'})"
+
+
+@dataclass(frozen=True)
+class Preset:
+    """One config of ``render_configs/``, as ``synthleak presets`` lists it."""
+
+    name: str
+    """The name ``load_config`` and the CLI take (the file's stem)."""
+    path: Path
+    extends: str | None
+    """The config it extends directly (None: none)."""
+    description: str
+    renderer: str | None
+    tiers: list[str]
+    cost: PresetCost | None
+    """Measured cost (None: not measured)."""
+    error: str | None = None
+    """Why the config does not load (one line); ``renderer`` and ``tiers`` are then unknown."""
+
+
+def load_costs(index: Path) -> dict[str, PresetCost]:
+    """The measured costs of ``index`` (``{"presets": {name: {"wall_s": ..., "cores": ..., ...}}}``) by preset
+    name; empty if the file does not exist. Unknown keys are ignored; raises :class:`ConfigError` naming the file
+    for a file that is not such JSON."""
+    try:
+        data = json.loads(index.read_text())
+    except FileNotFoundError:
+        return {}
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"{index}: not valid JSON: {exc}") from exc
+    presets = data.get("presets", {}) if isinstance(data, dict) else None
+    if not isinstance(presets, dict):
+        raise ConfigError(f"{index}: presets: must be an object of preset names")
+    costs = {}
+    for name, entry in presets.items():
+        where = f"{index}: presets.{name}"
+        if not isinstance(entry, dict):
+            raise ConfigError(f"{where}: must be an object")
+        wall_s, cores = entry.get("wall_s"), entry.get("cores")
+        if isinstance(wall_s, bool) or not isinstance(wall_s, int | float) or wall_s < 0:
+            raise ConfigError(f"{where}.wall_s: must be a number of seconds >= 0, got {wall_s!r}")
+        if cores is not None and (isinstance(cores, bool) or not isinstance(cores, int) or cores < 1):
+            raise ConfigError(f"{where}.cores: must be an integer >= 1, got {cores!r}")
+        text = {k: str(entry.get(k) or "") for k in ("cpu", "commit", "page")}
+        costs[name] = PresetCost(wall_s=float(wall_s), cores=cores, **text)
+    return costs
+
+
+def list_presets(index: Path | None = None, folder: Path | None = None) -> list[Preset]:
+    """Every config of ``folder`` (default: ``render_configs/``) by name, each loaded with :func:`load_config`:
+    one that does not load is listed with its ``error``. Costs come from ``index`` (default:
+    :func:`synthleak.paths.results_index_path`; a missing file: no costs), by file name or the config's ``name``."""
+    folder = folder if folder is not None else render_configs_dir()
+    costs = load_costs(index if index is not None else results_index_path())
+    presets = []
+    for path in sorted(folder.glob("*.toml"), key=lambda p: p.stem):
+        try:
+            raw = tomllib.loads(path.read_text())
+        except (OSError, tomllib.TOMLDecodeError):
+            raw = {}  # load_config says why below
+        extends, description = raw.get("extends"), raw.get("description", "")
+        common = {"name": path.stem, "path": path, "extends": extends if isinstance(extends, str) else None,
+                  "cost": costs.get(path.stem)}
+        try:
+            config = load_config(path)
+        except (SynthleakError, ValueError, OSError) as exc:
+            presets.append(Preset(**common, description=description if isinstance(description, str) else "",
+                                  renderer=None, tiers=[], error=" ".join(str(exc).split())))
+            continue
+        common["cost"] = common["cost"] or costs.get(config.name)  # the index may name it by its `name` key
+        presets.append(Preset(**common, description=config.description, renderer=config.render.renderer,
+                              tiers=list(config.localize.tiers)))
+    return presets

@@ -31,3 +31,8 @@ def render_configs_dir() -> Path:
 def scenes_usd_dir() -> Path:
     """Folder with room templates and example stages."""
     return _data_dir("scenes_usd", "SYNTHLEAK_SCENES_USD")
+
+
+def results_index_path() -> Path:
+    """``docs/results/index.json`` beside ``render_configs/``: the measured cost of the presets (may be absent)."""
+    return render_configs_dir().parent / "docs" / "results" / "index.json"

@@ -1,13 +1,13 @@
-"""Library listing for ``synthleak objects [--json]``: plain rows and a rich table."""
+"""Library listing for ``synthleak objects [--json]``: JSON rows, table cells and a rich table."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from rich.markup import escape
 from rich.table import Table
 
 from synthleak.assets.model import MaterialSpec, ObjectModel
+from synthleak.listing import rows_table
 
 
 def objects_rows(library: dict[str, ObjectModel]) -> list[dict[str, Any]]:
@@ -44,40 +44,41 @@ def _fmt(v: float, integer: bool) -> str:
     return str(int(v)) if integer else f"{v:g}"
 
 
-def objects_table(library: dict[str, ObjectModel]) -> Table:
-    """A rich table of the library (id, category, role, size, symmetry, support, parameter and scale ranges)."""
+OBJECTS_COLUMNS = ("id", "category", "role", "size x,y,z (m)", "sym", "support",
+                   "shape params [min..max] (default)", "scale", "textures")
+"""The columns of ``synthleak objects`` (table and tab-separated output)."""
+
+
+def objects_title(library: dict[str, ObjectModel]) -> str:
+    """The listing's title: how many models, furniture, props and categories."""
     n_props = sum(m.role == "prop" for m in library.values())
-    t = Table(
-        title=f"object library ({len(library)} models: {len(library) - n_props} furniture, {n_props} props; "
-        f"{len({m.category for m in library.values()})} categories)"
-    )
-    for col in (
-        "id",
-        "category",
-        "role",
-        "size x,y,z (m)",
-        "sym",
-        "support",
-        "shape params [min..max] (default)",
-        "scale",
-        "textures",
-    ):
-        t.add_column(escape(col), overflow="fold")
+    return (f"object library ({len(library)} models: {len(library) - n_props} furniture, {n_props} props; "
+            f"{len({m.category for m in library.values()})} categories)")
+
+
+def objects_cells(library: dict[str, ObjectModel]) -> list[list[str]]:
+    """One row of :data:`OBJECTS_COLUMNS` per model, sorted by id (shape parameters one per line)."""
+    cells = []
     for row in objects_rows(library):
         params = "\n".join(
             f"{k} [{_fmt(p['min'], p['integer'])}..{_fmt(p['max'], p['integer'])}] "
             f"({_fmt(p['default'], p['integer'])})"
             for k, p in row["params"].items()
         )
-        t.add_row(
+        cells.append([
             row["id"],
             row["category"],
             row["role"],
             " x ".join(f"{s:.2f}" for s in row["size"]),
             row["symmetry"],
             row["support"],
-            escape(params) or "-",
+            params or "-",
             f"{row['scale_range'][0]:g}..{row['scale_range'][1]:g}",
             ", ".join(sorted(set(row["textures"].values()))),
-        )
-    return t
+        ])
+    return cells
+
+
+def objects_table(library: dict[str, ObjectModel]) -> Table:
+    """A rich table of the library (id, category, role, size, symmetry, support, parameter and scale ranges)."""
+    return rows_table(OBJECTS_COLUMNS, objects_cells(library), objects_title(library))

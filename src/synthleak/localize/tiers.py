@@ -33,8 +33,9 @@ extractor. The config's ``[localize] tiers``, ``synthleak map --tier`` and ``get
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -100,6 +101,8 @@ MatcherFactory = Callable[[Tier, Path | None], Matcher]
 TIERS: dict[str, Tier] = {}
 """The registered tiers by name, in registration order (least to most robust)."""
 _FACTORIES: dict[str, tuple[ExtractorFactory | str, MatcherFactory | str]] = {}
+_DESCRIPTIONS: dict[str, str] = {}
+"""What each tier's features and matcher are, in words (not part of the definition: no cache key reads it)."""
 
 
 def nn_matcher(tier: Tier, weights_dir: Path | None = None) -> Matcher:
@@ -109,20 +112,34 @@ def nn_matcher(tier: Tier, weights_dir: Path | None = None) -> Matcher:
 
 
 def register_tier(
-    tier: Tier, extractor: ExtractorFactory | str, matcher: MatcherFactory | str = nn_matcher
+    tier: Tier, extractor: ExtractorFactory | str, matcher: MatcherFactory | str = nn_matcher, *,
+    description: str = "",
 ) -> Tier:
     """Make ``tier`` known by its name (a later registration of the name replaces the earlier one).
 
     ``extractor`` / ``matcher``: factories, or ``"package.module:function"`` imported on first use
-    (:func:`synthleak.plugins.resolve`)."""
+    (:func:`synthleak.plugins.resolve`). ``description``: its features and matcher in words
+    (``synthleak tiers`` shows it)."""
     TIERS[tier.name] = tier
     _FACTORIES[tier.name] = (extractor, matcher)
+    _DESCRIPTIONS[tier.name] = description
     return tier
 
 
 def tier_names() -> list[str]:
     """Registered tier names, least to most robust."""
     return list(TIERS)
+
+
+def tier_description(name: str) -> str:
+    """The features and matcher of tier ``name`` in words ("" if it was registered without)."""
+    return _DESCRIPTIONS.get(get_tier(name).name, "")
+
+
+def list_tiers() -> list[dict[str, Any]]:
+    """Every registered tier, least to most robust: its name, :func:`tier_description` and definition fields."""
+    return [{"name": name, "description": tier_description(name),
+             **{k: v for k, v in asdict(tier).items() if k != "name"}} for name, tier in TIERS.items()]
 
 
 def get_tier(name: str) -> Tier:
@@ -183,22 +200,26 @@ def _lightglue(tier: Tier, weights_dir: Path | None) -> Matcher:
     return deep.LightGlueMatcher(tier.name.split("-")[0], weights_dir, tier.match_threshold)
 
 
-register_tier(Tier("orb", ratio=0.75, mutual=True, pnp_max_error_px=12.0, min_inliers=20), _opencv)
-register_tier(Tier("akaze", ratio=0.8, mutual=True, pnp_max_error_px=12.0, min_inliers=15), _opencv)
-register_tier(Tier("sift", ratio=0.8, mutual=True, pnp_max_error_px=12.0, min_inliers=15), _sift)
+register_tier(Tier("orb", ratio=0.75, mutual=True, pnp_max_error_px=12.0, min_inliers=20), _opencv,
+              description="OpenCV ORB (binary) / Hamming NN")
+register_tier(Tier("akaze", ratio=0.8, mutual=True, pnp_max_error_px=12.0, min_inliers=15), _opencv,
+              description="OpenCV AKAZE (binary; absent from OpenCV 5 main) / Hamming NN")
+register_tier(Tier("sift", ratio=0.8, mutual=True, pnp_max_error_px=12.0, min_inliers=15), _sift,
+              description="COLMAP SIFT (pycolmap) / L2 NN")
 register_tier(Tier("kornia-sift", ratio=0.8, mutual=True, pnp_max_error_px=12.0, min_inliers=15, needs_torch=True),
-              _kornia_sift, _kornia_matcher)
+              _kornia_sift, _kornia_matcher, description="kornia SIFTFeature / kornia DescriptorMatcher smnn")
 register_tier(Tier("xfeat", ratio=0.9, mutual=True, pnp_max_error_px=12.0, min_inliers=30, needs_torch=True,
-                   max_keypoints=4096, weights=("xfeat",)), _learned("XFeatExtractor"))
+                   max_keypoints=4096, weights=("xfeat",)), _learned("XFeatExtractor"),
+              description="XFeat (learned, 64-D) / L2 NN")
 register_tier(Tier("xfeat-lighterglue", ratio=0.0, mutual=False, pnp_max_error_px=12.0, min_inliers=30,
                    needs_torch=True, max_keypoints=1024, learned_matcher=True,
                    weights=("xfeat", "xfeat-lighterglue"), match_threshold=0.3),
-              _learned("XFeatExtractor"), _lightglue)
+              _learned("XFeatExtractor"), _lightglue, description="XFeat / LighterGlue (learned matcher)")
 register_tier(Tier("disk-lightglue", ratio=0.0, mutual=False, pnp_max_error_px=12.0, min_inliers=30,
                    needs_torch=True, max_keypoints=1024, learned_matcher=True, weights=("disk", "disk-lightglue"),
                    match_threshold=0.3),
-              _learned("DiskExtractor"), _lightglue)
+              _learned("DiskExtractor"), _lightglue, description="DISK / LightGlue (learned matcher)")
 register_tier(Tier("aliked-lightglue", ratio=0.0, mutual=False, pnp_max_error_px=12.0, min_inliers=30,
                    needs_torch=True, max_keypoints=1024, learned_matcher=True,
                    weights=("aliked-n16", "aliked-lightglue"), match_threshold=0.3),
-              _learned("AlikedExtractor"), _lightglue)
+              _learned("AlikedExtractor"), _lightglue, description="ALIKED-N16 / LightGlue (learned matcher)")

@@ -10,6 +10,7 @@ from pathlib import Path
 from synthleak.atomic_io import atomic_write_text
 from synthleak.config import StudyConfig, check_config
 from synthleak.executors import Executor, make_executor
+from synthleak.provenance import append_run
 from synthleak.study.attack import AttackStage
 from synthleak.study.context import Stage, StudyContext
 from synthleak.study.features import FeaturesStage
@@ -62,18 +63,23 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
     paths = StudyPaths(Path(out))
     paths.root.mkdir(parents=True, exist_ok=True)
     with study_lock(paths.root):  # before any worker starts: a second run is refused at once
+        started = time.time()
         if isinstance(executor, str):
             with make_executor(executor, workers, address) as pool:
-                return _run_stages(config, paths, forced, server_url, progress, pool)
-        return _run_stages(config, paths, forced, server_url, progress, executor)
+                ctx = _run_stages(config, paths, forced, server_url, progress, pool)
+        else:
+            ctx = _run_stages(config, paths, forced, server_url, progress, executor)
+        kind = executor if isinstance(executor, str) else type(executor).__name__
+        append_run(paths.root, config, started, ctx.timings, getattr(executor, "workers", workers), kind)
+        return ctx.outputs["report"]
 
 
 def _run_stages(config: StudyConfig, paths: StudyPaths, forced: frozenset[str], server_url: str | None,
-                progress: bool, executor: Executor) -> Path:
+                progress: bool, executor: Executor) -> StudyContext:
     ctx = StudyContext(config, paths, forced, progress, executor, server_url)
     for stage in study_stages(ctx):
         start = time.perf_counter()
         ctx.outputs[stage.name] = stage.run(ctx)
         ctx.timings[stage.timings_label()] = round(time.perf_counter() - start, 2)
     atomic_write_text(paths.timings, json.dumps(ctx.timings, indent=1))
-    return ctx.outputs["report"]
+    return ctx
