@@ -48,19 +48,20 @@ def test_float_matcher_equals_reference(ratio: float, mutual: bool) -> None:
 
 
 def test_sift_distances_are_exact_and_scale_free() -> None:
-    """SIFT's integer descriptors: the unit-row distances do not depend on BLAS summation order (a reversed
-    column order gives the same bytes) and equal those of the rows normalised in float64 to rounding."""
-    from synthleak.localize.matching import unit_squared_l2
+    """SIFT's integer descriptors: the unit-row scores do not depend on BLAS summation order (a reversed column
+    order gives the same bytes), and the distances equal those of the rows normalised in float64 to rounding."""
+    from synthleak.localize.matching import unit_scores
 
     rng = np.random.default_rng(2)
     a = rng.integers(0, 256, size=(300, 128)).astype(np.float32)
     b = rng.integers(0, 256, size=(200, 128)).astype(np.float32)
-    got = unit_squared_l2(a, b)
-    assert got.dtype == np.float64
-    assert unit_squared_l2(a[:, ::-1].copy(), b[:, ::-1].copy()).tobytes() == got.tobytes()
+    score = unit_scores(a, b)
+    again = unit_scores(a[:, ::-1].copy(), b[:, ::-1].copy())
+    assert again.tobytes() == score.tobytes()
     unit_a, unit_b = (x / np.linalg.norm(x.astype(np.float64), axis=1, keepdims=True) for x in (a, b))
-    np.testing.assert_allclose(got, ((unit_a[:, None] - unit_b[None]) ** 2).sum(-1), atol=1e-12)
-    np.testing.assert_array_equal(unit_squared_l2(0.5 * a, b), got)  # scale-free: a/2 is the same direction
+    np.testing.assert_allclose(2.0 + 2.0 * score, ((unit_a[:, None] - unit_b[None]) ** 2).sum(-1), atol=1e-6)
+    half = unit_scores(a, 0.5 * b)  # scale-free: b/2 is the same direction
+    np.testing.assert_array_equal(half, score)
 
 
 def test_duplicate_descriptors_match_once_like_argmin() -> None:

@@ -63,7 +63,7 @@ class SiftExtractor:
     """COLMAP SIFT (pycolmap, CPU), single threaded: COLMAP's uint8 descriptors (L1-root normalised, scaled
     by 512) held as integer-valued float32 rows. Their dot products are integers below 2^24, exact in float32
     whatever the BLAS kernel sums first; the matcher compares them as unit vectors
-    (:func:`~synthleak.localize.matching.unit_squared_l2`), so SIFT matches are the same on every CPU
+    (:func:`~synthleak.localize.matching.unit_scores`), so SIFT matches are the same on every CPU
     (``docs/determinism.md``)."""
 
     def __init__(self, max_keypoints: int) -> None:

@@ -25,32 +25,37 @@ def squared_l2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return left @ right.T
 
 
-def unit_squared_l2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(Na, Nb) float64 squared L2 distances between the rows scaled to unit length, ``2 - 2 a.b / (|a| |b|)``.
+def unit_scores(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(Na, Nb) float32 ``-a.b / (|a| |b|)``: minus the cosine, so lower is nearer along rows and columns alike,
+    and ``2 + 2 score`` is the squared L2 distance between the unit rows.
 
-    The product runs in float32 BLAS, the rest elementwise in float64. For integer rows whose products sum
-    below 2^24 (SIFT's uint8 descriptors: 128 x 255^2) every partial sum is exact, so the distances are the
-    same bytes whatever kernel or summation order the CPU's BLAS picks (``docs/determinism.md``)."""
+    The product runs in float32 BLAS, the scaling elementwise (by ``-1/|a|``, then by ``1/|b|``). For integer
+    rows whose products sum below 2^24 (SIFT's uint8 descriptors: 128 x 255^2) every partial sum is exact, and
+    IEEE elementwise products and square roots are correctly rounded, so the scores are the same bytes whatever
+    kernel or summation order the CPU's BLAS picks (``docs/determinism.md``)."""
     a = np.asarray(a, dtype=np.float32)
     b = np.asarray(b, dtype=np.float32)
-    a64, b64 = a.astype(np.float64), b.astype(np.float64)
-    norm_a = np.sqrt(np.maximum(np.einsum("ij,ij->i", a64, a64), 1e-24))
-    norm_b = np.sqrt(np.maximum(np.einsum("ij,ij->i", b64, b64), 1e-24))
-    cosine = (a @ b.T).astype(np.float64)
-    cosine /= norm_a[:, None]
-    cosine /= norm_b[None, :]
-    return 2.0 - 2.0 * cosine
+
+    def inverse_norms(x: np.ndarray) -> np.ndarray:
+        x64 = x.astype(np.float64)
+        return (1.0 / np.sqrt(np.maximum(np.einsum("ij,ij->i", x64, x64), 1e-24))).astype(np.float32)
+
+    score = a @ b.T
+    score *= -inverse_norms(a)[:, None]
+    score *= inverse_norms(b)[None, :]
+    return score
 
 
 def match_features(a: Features, b: Features, ratio: float, mutual: bool) -> np.ndarray:
     """(M, 2) int indices ``(i in a, j in b)``; ratio <= 0 or >= 1 disables the ratio test. Float descriptors
-    are compared as unit vectors (:func:`unit_squared_l2`), binary ones by Hamming distance."""
+    are compared as unit vectors (:func:`unit_scores`), binary ones by Hamming distance."""
     if len(a) == 0 or len(b) == 0:
         return np.zeros((0, 2), np.int64)
     if a.binary:
         return _match_binary(a.descriptors, b.descriptors, ratio, mutual)
-    # Lowe's test on squared distances: d0 < r d1  <=>  d0^2 < r^2 d1^2 (no square roots).
-    return nearest_neighbours(unit_squared_l2(a.descriptors, b.descriptors), ratio * ratio, mutual)
+    # Lowe's test on squared distances: d0 < r d1  <=>  d0^2 < r^2 d1^2 (no square roots)
+    return nearest_neighbours(unit_scores(a.descriptors, b.descriptors), ratio * ratio, mutual,
+                              to_distance=lambda s: 2.0 + 2.0 * s.astype(np.float64))
 
 
 def nearest_neighbours(dist: np.ndarray, ratio: float, mutual: bool,
