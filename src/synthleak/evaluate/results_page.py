@@ -173,7 +173,7 @@ def render_page(summary: Mapping[str, Any]) -> str:
         "Precision / recall of the presence decision over (room, object) pairs; placement success: GT-present "
         "pairs placed within the same thresholds (unplaced pairs fail); median errors over the GT-present "
         "pairs; attacker queries localized over present / absent pairs.\n",
-        markdown_table(_none_as_nan(s["headline"]), HEADLINE_COLUMNS, digits=2),
+        markdown_table(_none_as_nan(s["headline"]), HEADLINE_COLUMNS, digits=3),
         "## Every aligner and threshold pair\n",
         markdown_table(_none_as_nan(s["thresholds"]), ["tier", "aligner", "thresholds", "precision", "recall",
                                                        "placement_success"], digits=2),
@@ -255,10 +255,17 @@ def presets_markdown(index: Path | None = None, folder: Path | None = None) -> s
         scale = (f"{config.scenes.rooms} rooms, {config.render.width}x{config.render.height}, "
                  f"{len(config.localize.tiers)} tier{'s' if len(config.localize.tiers) > 1 else ''}")
         cost = preset.cost
-        wall = f"{cost} on {cost.cpu.split(' (')[0]}" if cost else "not measured"
+        wall = f"{cost}, {_short_cpu(cost.cpu)}" if cost else "not measured"
         page = f"[{Path(cost.page).name}]({cost.page})" if cost and cost.page else "–"
         lines.append(f"| `{preset.name}` | {preset.description} | {scale} | {wall} | {page} |")
     return "\n".join(lines) + "\n"
+
+
+def _short_cpu(cpu: str) -> str:
+    """``Intel(R) Xeon(R) Processor, AVX-512`` from :func:`synthleak.provenance.cpu_model`'s longer text."""
+    name, _, rest = cpu.partition(" (")
+    simd = rest.rstrip(")").partition("; ")[2].split(", ")[0]
+    return f"{name}, {simd}" if simd else name
 
 
 def write_readme_presets(readme: Path, index: Path | None = None) -> Path:
