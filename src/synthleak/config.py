@@ -28,6 +28,12 @@ def _tiers() -> Iterable[str]:
     return tier_names()
 
 
+def _profiles() -> Iterable[str]:
+    from synthleak.localize.tiers import profile_names
+
+    return profile_names()
+
+
 def _aligners() -> Iterable[str]:
     from synthleak.attack.align import aligner_names
 
@@ -205,6 +211,7 @@ class LocalizeConfig:
 
     RULES: ClassVar[dict[str, Rule]] = {
         "tiers": each(one_of(_tiers), nonempty=True),
+        "profile": one_of(_profiles),
         "retrieval": one_of(_retrieval_methods),
         "top_k": COUNT,
         "bow_branching": at_least(2),
@@ -215,9 +222,16 @@ class LocalizeConfig:
         "pairs_per_image": COUNT,
     }
     """A rule per field, checked when the config loads."""
+    KEY_DEFAULTS: ClassVar[dict[str, Any]] = {"profile": "strict"}
+    """Fields added after content keys were in use: :func:`config_to_dict` leaves them out at these values, so a
+    config that does not change them keeps its keys (and its cached maps, queries and report)."""
 
 
     tiers: list[str] = field(default_factory=lambda: ["sift"])
+    profile: str = "strict"
+    """Server profile: ``strict`` (each tier's own thresholds: stricter than published defaults for the learned
+    tiers) or ``hloc`` (HLoc's defaults for each tier: matcher checks, LightGlue's 0.1, 12 px PnP, a pose from 3
+    inliers); :data:`synthleak.localize.tiers.PROFILES`, ``docs/learned-tiers.md``. Maps record it."""
     retrieval: str = "bow"
     """``bow`` (vocabulary-tree bag of words, then the ``top_k`` map images) or ``exhaustive`` (every map image);
     docs/retrieval.md has the measured recall against exhaustive matching and the cost per query."""
@@ -406,17 +420,24 @@ def load_config(name_or_path: str | Path) -> StudyConfig:
     return config_from_dict(_read_toml(path), str(path))
 
 
-def config_to_dict(config: StudyConfig) -> dict[str, Any]:
-    """Plain-data form of a config (tuples become lists), for manifests and cache keys."""
+def config_to_dict(config: Any) -> dict[str, Any]:
+    """Plain-data form of a config or of one of its sections (tuples become lists), for manifests and cache keys.
+    A class's ``KEY_DEFAULTS`` fields are left out at their default value (:func:`config_from_dict` reads them
+    back as the default)."""
+    _omit = object()
 
     def plain(value: Any) -> Any:
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            defaults = getattr(value, "KEY_DEFAULTS", {})
+            return {f.name: plain(v) for f in dataclasses.fields(value)
+                    if (v := getattr(value, f.name)) != defaults.get(f.name, _omit)}
         if isinstance(value, tuple | list):
             return [plain(v) for v in value]
         if isinstance(value, dict):
             return {k: plain(v) for k, v in value.items()}
         return value
 
-    return plain(dataclasses.asdict(config))
+    return plain(config)
 
 
 # ------------------------------------------------------------------------------------------------- presets

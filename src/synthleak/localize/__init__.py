@@ -20,7 +20,7 @@ _EXPORTS = {
     "DefenseDecision": "defense", "DefensePolicy": "defense", "decide": "defense",
     "LocalizationResult": "localizer", "Localizer": "localizer",
     "build_map": "mapping",
-    "TIERS": "tiers", "Tier": "tiers", "get_tier": "tiers",
+    "TIERS": "tiers", "Tier": "tiers", "get_tier": "tiers", "PROFILES": "tiers", "profile_tier": "tiers",
 }
 """Public name -> its module, imported on first use: the tier registry (read by config validation) and the
 torch-based ``deep`` module import this package without pulling in the localizer and its config types."""

@@ -17,8 +17,8 @@ from synthleak.localize.defense import DefenseDecision, DefensePolicy
 from synthleak.localize.features import Features
 from synthleak.localize.images import MAX_QUERY_PIXELS, InvalidImageError, decode_image, fit_to_pixels
 from synthleak.localize.retrieval import RETRIEVAL_METHODS, BowIndex
-from synthleak.localize.store import MapData, read_map
-from synthleak.localize.tiers import Tier, get_tier
+from synthleak.localize.store import MapData, MapError, read_map
+from synthleak.localize.tiers import DEFAULT_PROFILE, Tier, profile_tier
 
 RANSAC_SEED = 0
 
@@ -81,10 +81,18 @@ class Localizer:
         weights_dir: Path | None = None,
         decision_log: Path | None = None,
     ) -> Localizer:
-        """Load a map built by :func:`synthleak.localize.build_map`; the tier is the map's."""
+        """Load a map built by :func:`synthleak.localize.build_map`; the tier is the map's, as ``config.profile``
+        defines it (:func:`~synthleak.localize.tiers.profile_tier`). Raises :class:`MapError` when the map was
+        built under another server profile (its matches were filtered with other thresholds)."""
         map_dir = Path(map_dir)
         data = read_map(map_dir)
-        loc = cls(data, get_tier(data.meta["tier"]), config or LocalizeConfig(), defense, weights_dir,
+        config = config or LocalizeConfig()
+        built = data.meta.get("settings", {}).get("profile", DEFAULT_PROFILE)
+        if built != config.profile:
+            raise MapError(f"{map_dir / 'map.json'}: built with [localize] profile = {built!r}, but this "
+                           f"server's config has profile = {config.profile!r}: serve it with a config of "
+                           f"profile {built!r}, or rebuild the map")
+        loc = cls(data, profile_tier(data.meta["tier"], config.profile), config, defense, weights_dir,
                   decision_log)
         if loc.config.retrieval == "bow" or loc.tier.learned_matcher:  # a learned matcher: top_k images only
             with np.load(map_dir / "bow.npz") as arrays:

@@ -24,7 +24,7 @@ from synthleak.localize.features import Features
 from synthleak.localize.pairs import pairs_from_poses
 from synthleak.localize.retrieval import BowIndex, BowParams
 from synthleak.localize.store import FORMAT_VERSION, camera_to_json
-from synthleak.localize.tiers import get_tier
+from synthleak.localize.tiers import DEFAULT_PROFILE, profile_tier
 from synthleak.localize.triangulation import (
     build_tracks,
     epipolar_distance,
@@ -69,7 +69,11 @@ def _map_settings(tier: str, config: LocalizeConfig, weights: dict) -> dict:
                 "format_version": FORMAT_VERSION}
     if weights:  # learned tiers: new weights or a new definition (thresholds, budget), new map
         settings["weights_sha256"] = {k: v["sha256"] for k, v in weights.items()}
-        settings["tier_definition"] = json.loads(json.dumps(asdict(get_tier(tier))))  # as map.json reads back
+    if config.profile != DEFAULT_PROFILE:  # strict maps keep the settings they had before profiles
+        settings["profile"] = config.profile
+    if weights or config.profile != DEFAULT_PROFILE:
+        definition = asdict(profile_tier(tier, config.profile))
+        settings["tier_definition"] = json.loads(json.dumps(definition))  # as map.json reads back
     return settings
 
 
@@ -84,11 +88,13 @@ def build_map(
     """Build (or reuse, if ``map.json`` matches the inputs' hash and settings) the map of a sequence.
 
     Returns ``out_dir``. ``weights_dir`` (learned tiers only) is searched for weight files before the installed
-    weight packages; ``map.json`` records each weight file's sha256 (a map is rebuilt when they change).
+    weight packages; ``map.json`` records each weight file's sha256 (a map is rebuilt when they change). The map
+    is matched with the tier as ``config.profile`` defines it; a profile other than ``strict`` is recorded in
+    ``map.json``'s settings (``profile``, ``tier_definition``), so a map is rebuilt when it changes.
     """
     config = config or LocalizeConfig()
     sequence_dir, out_dir = Path(sequence_dir), Path(out_dir)
-    tier_spec = get_tier(tier)
+    tier_spec = profile_tier(tier, config.profile)
     seq = load_sequence(sequence_dir)
     if len(seq.map_frames) < 2:
         raise DatasetError(f"{sequence_dir / 'split.json'}: field 'map' needs at least 2 frames")

@@ -24,6 +24,10 @@ whatever ``LocalizeConfig.retrieval`` says (matching every map image would cost 
 
 All use RANSAC PnP with a 12 px threshold (HLoc's default; ``LocalizeConfig.pnp_max_error_px`` overrides it).
 
+Server profiles (``[localize] profile``, :data:`PROFILES`, :func:`profile_tier`): ``strict`` is the table above;
+``hloc`` sets each tier's matching and PnP fields to HLoc's published defaults (``docs/learned-tiers.md``, "Server
+profiles", has the table and its sources).
+
 Adding a tier is one registration: :func:`register_tier` with its :class:`Tier` definition, an extractor
 factory and (unless mutual-NN + ratio matching suits it) a matcher factory, here or in the module that holds the
 extractor. The config's ``[localize] tiers``, ``synthleak map --tier`` and ``get_tier`` read this registry
@@ -33,7 +37,7 @@ extractor. The config's ``[localize] tiers``, ``synthleak map --tier`` and ``get
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -136,10 +140,12 @@ def tier_description(name: str) -> str:
     return _DESCRIPTIONS.get(get_tier(name).name, "")
 
 
-def list_tiers() -> list[dict[str, Any]]:
-    """Every registered tier, least to most robust: its name, :func:`tier_description` and definition fields."""
+def list_tiers(profile: str = "strict") -> list[dict[str, Any]]:
+    """Every registered tier, least to most robust: its name, :func:`tier_description` and definition fields
+    (under server ``profile``: :func:`profile_tier`)."""
     return [{"name": name, "description": tier_description(name),
-             **{k: v for k, v in asdict(tier).items() if k != "name"}} for name, tier in TIERS.items()]
+             **{k: v for k, v in asdict(profile_tier(tier, profile)).items() if k != "name"}}
+            for name, tier in TIERS.items()]
 
 
 def get_tier(name: str) -> Tier:
@@ -223,3 +229,93 @@ register_tier(Tier("aliked-lightglue", ratio=0.0, mutual=False, pnp_max_error_px
                    needs_torch=True, max_keypoints=1024, learned_matcher=True,
                    weights=("aliked-n16", "aliked-lightglue"), match_threshold=0.3),
               _learned("AlikedExtractor"), _lightglue, description="ALIKED-N16 / LightGlue (learned matcher)")
+
+
+# ---------------------------------------------------------------------------------------------- profiles
+PROFILE_FIELDS = ("ratio", "mutual", "min_inliers", "pnp_max_error_px", "match_threshold")
+"""The :class:`Tier` fields a server profile may set: matching and PnP only. A tier's extractor and keypoint
+budget are the same under every profile, so query features are too (the study's features stage shares them)."""
+
+DEFAULT_PROFILE = "strict"
+
+_HLOC_LOCALIZE = {"pnp_max_error_px": 12.0, "min_inliers": 3}
+"""hloc/localize_sfm.py:137,154 (``ransac_thresh=12`` -> ``estimation.ransac.max_error``); localized: pycolmap's
+``estimate_and_refine_absolute_pose`` returns a pose (hloc/localize_sfm.py:63-70,203-204), which COLMAP's
+LO-RANSAC does once its best model has at least ``P3PEstimator::kMinNumSamples`` = 3 inliers
+(colmap src/colmap/optim/loransac.h:368-372, src/colmap/estimators/solvers/absolute_pose.h:65)."""
+_HLOC_NN_RATIO = {"ratio": 0.8, "mutual": True}
+"""hloc/match_features.py:69-76 ``NN-ratio``: mutual check, ratio 0.8 (hloc/matchers/nearest_neighbor.py:11: on
+squared distances against ratio**2, the same test as ours on distances)."""
+_HLOC_NN_MUTUAL = {"ratio": 0.0, "mutual": True}
+"""hloc/match_features.py:77-83 ``NN-mutual``: mutual check only (no ratio, no distance threshold:
+hloc/matchers/nearest_neighbor.py:28-32)."""
+_HLOC_LIGHTGLUE = {"match_threshold": 0.1}
+"""hloc/match_features.py:31-44 ``disk+lightglue`` / ``aliked+lightglue`` set no ``filter_threshold``
+(hloc/matchers/lightglue.py:7-12), so LightGlue's default: 0.1 (cvg/LightGlue lightglue/lightglue.py:333; XFeat's
+LighterGlue: 0.1 too, verlab/accelerated_features modules/lighterglue.py:25)."""
+
+PROFILES: dict[str, dict[str, dict[str, Any]]] = {
+    "strict": {},
+    "hloc": {
+        "orb": {**_HLOC_NN_MUTUAL, **_HLOC_LOCALIZE},
+        "akaze": {**_HLOC_NN_MUTUAL, **_HLOC_LOCALIZE},
+        "sift": {**_HLOC_NN_RATIO, **_HLOC_LOCALIZE},
+        "kornia-sift": {**_HLOC_NN_RATIO, **_HLOC_LOCALIZE},
+        "xfeat": {**_HLOC_NN_MUTUAL, **_HLOC_LOCALIZE},
+        "xfeat-lighterglue": {**_HLOC_LIGHTGLUE, **_HLOC_LOCALIZE},
+        "disk-lightglue": {**_HLOC_LIGHTGLUE, **_HLOC_LOCALIZE},
+        "aliked-lightglue": {**_HLOC_LIGHTGLUE, **_HLOC_LOCALIZE},
+    },
+}
+"""Server profiles: per tier, the :data:`PROFILE_FIELDS` that replace the tier's own (``[localize] profile``).
+
+``strict`` (the default) is the registered tiers as they are. ``hloc`` is HLoc's defaults for the closest HLoc
+configuration (cvg/Hierarchical-Localization at c13273b; every tier keeps its features and keypoint budget):
+
+================== ============================== ===== ====== ========== =========== ======
+tier               HLoc configuration             ratio mutual LightGlue  min inliers PnP px
+================== ============================== ===== ====== ========== =========== ======
+orb, akaze         ``NN-mutual`` (Hamming)        none  yes    --         3           12
+sift, kornia-sift  ``NN-ratio``                   0.8   yes    --         3           12
+xfeat              ``NN-mutual``                  none  yes    --         3           12
+xfeat-lighterglue  LightGlue default (LighterGlue) --    --     > 0.1      3           12
+disk-lightglue     ``disk+lightglue``             --    --     > 0.1      3           12
+aliked-lightglue   ``aliked+lightglue``           --    --     > 0.1      3           12
+================== ============================== ===== ====== ========== =========== ======
+
+Sources: matchers hloc/match_features.py:24-83 and hloc/matchers/nearest_neighbor.py:27-32; LightGlue's
+``filter_threshold`` cvg/LightGlue lightglue/lightglue.py:333 (hloc/matchers/lightglue.py:7-12 leaves it);
+PnP hloc/localize_sfm.py:137,154 (no pipeline of hloc/pipelines/ changes it); min inliers: no threshold in
+hloc/localize_sfm.py, a pose is pycolmap's success, 3 inliers (COLMAP loransac.h:368). HLoc has no XFeat: its
+``NN-mutual`` is what HLoc pairs with learned descriptors that have no dedicated matcher (R2D2, D2-Net; the paper's
+R2D2 + NN) and what XFeat's own matcher does (mutual NN, ``min_cossim=-1``: verlab/accelerated_features
+modules/xfeat.py:166,328-342). Nor binary features: ORB and AKAZE get ``NN-mutual`` on Hamming distances.
+
+A profile is a plain table: a plugin tier gets values under a profile with ``PROFILES["hloc"]["name"] = {...}``."""
+
+
+def profile_names() -> list[str]:
+    """The server profiles, ``strict`` first."""
+    return list(PROFILES)
+
+
+def profile_tier(tier: Tier | str, profile: str = DEFAULT_PROFILE) -> Tier:
+    """The tier (a :class:`Tier` or a registered name) as server ``profile`` defines it: ``strict``, the tier
+    itself; another profile, the tier with that profile's :data:`PROFILE_FIELDS` for it. Raises ``ValueError``
+    for an unknown profile, or one that has no values for the tier."""
+    spec = get_tier(tier) if isinstance(tier, str) else tier
+    try:
+        table = PROFILES[profile]
+    except KeyError:
+        raise ValueError(f"unknown server profile {profile!r} (known: {', '.join(PROFILES)})") from None
+    if profile == DEFAULT_PROFILE:
+        return spec
+    if spec.name not in table:
+        raise ValueError(f"server profile {profile!r} has no values for tier {spec.name!r} "
+                         f"(it has: {', '.join(table)})")
+    overrides = table[spec.name]
+    unknown = sorted(set(overrides) - set(PROFILE_FIELDS))
+    if unknown:
+        raise ValueError(f"server profile {profile!r}, tier {spec.name!r}: {', '.join(unknown)} cannot be set by a "
+                         f"profile (only {', '.join(PROFILE_FIELDS)})")
+    return replace(spec, **overrides)

@@ -37,7 +37,8 @@ def feature_task(task: FeatureTask) -> int:
 
 class FeaturesStage(Stage):
     """Features cached under ``features/<tier>/<sequence>/<frame>.npz`` (in-process servers only), keyed by the
-    renders, the tier and the extraction settings."""
+    renders, the tier and the extraction settings; not by ``[localize] profile``, which sets only matching and
+    PnP fields (:data:`~synthleak.localize.tiers.PROFILE_FIELDS`), so every profile extracts the same features."""
 
     name = "features"
 

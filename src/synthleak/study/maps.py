@@ -18,15 +18,17 @@ def build_map_task(task: tuple[Path, str, Path, Any]) -> Path:
 
 
 class MapsStage(Stage):
-    """A map depends on the renders, its tier (a learned tier's definition and weights) and the localize
-    settings, not on the other tiers."""
+    """A map depends on the renders, its tier (a learned tier's definition and weights; any tier's effective
+    definition under a server profile other than ``strict``) and the localize settings, not on the other tiers."""
 
     name = "maps"
 
     def units(self, ctx: StudyContext) -> list[Unit]:
         localize = {k: v for k, v in ctx.section("localize").items() if k != "tiers"}
         render_key = ctx.render_key
-        return [Unit(folder, cache_key("map", render_key, tier, localize, *tier_weights(tier)), (tier, room))
+        profile = ctx.config.localize.profile
+        return [Unit(folder, cache_key("map", render_key, tier, localize, *tier_weights(tier, profile)),
+                     (tier, room))
                 for (tier, room), folder in ctx.servers().items()]
 
     def make(self, ctx: StudyContext, todo: list[Unit]) -> None:

@@ -59,7 +59,7 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
     (Ctrl-C, SIGTERM), it ends its workers; what was finished is kept, and a rerun resumes."""
     forced = check_force(force)
     check_config(config, config.name)  # a config built in Python fails here, not after the renders
-    check_tiers_installed(config.localize.tiers)
+    check_tiers_installed(config.localize.tiers, config.localize.profile)
     paths = StudyPaths(Path(out))
     paths.root.mkdir(parents=True, exist_ok=True)
     with study_lock(paths.root):  # before any worker starts: a second run is refused at once

@@ -6,26 +6,35 @@ import importlib.util
 from collections.abc import Sequence
 from dataclasses import asdict
 
-from synthleak.errors import MissingDependencyError
+from synthleak.errors import ConfigError, MissingDependencyError
 from synthleak.localize.deep import EXTRA, INSTALL_HINT
-from synthleak.localize.tiers import get_tier
+from synthleak.localize.tiers import DEFAULT_PROFILE, get_tier, profile_tier
 
 
-def tier_weights(tier: str) -> list:
-    """A learned tier's definition (matching thresholds, budget) and the sha256 of its weight files; nothing for
-    the other tiers (their keys stay as they were)."""
-    spec = get_tier(tier)
+def tier_weights(tier: str, profile: str = DEFAULT_PROFILE) -> list:
+    """What of a tier enters a content key: a learned tier's definition (matching thresholds, budget) and the
+    sha256 of its weight files; under a server ``profile`` other than ``strict``, every tier's effective
+    definition (:func:`~synthleak.localize.tiers.profile_tier`) and the profile's name. Nothing for the other
+    tiers under ``strict`` (their keys stay as they were)."""
+    spec = profile_tier(tier, profile)
     record = spec.weights_record()
-    if not record:
+    if not record and profile == DEFAULT_PROFILE:
         return []
-    return [{"tier": asdict(spec), "weights": {name: entry["sha256"] for name, entry in sorted(record.items())}}]
+    entry = {"tier": asdict(spec), "weights": {name: e["sha256"] for name, e in sorted(record.items())}}
+    return [entry if profile == DEFAULT_PROFILE else {"profile": profile, **entry}]
 
 
-def check_tiers_installed(tiers: Sequence[str]) -> None:
-    """Fail before any rendering when a tier's packages (torch, kornia) or weight files are not installed; the
-    error names the ``[learned]`` extra and the install command."""
+def check_tiers_installed(tiers: Sequence[str], profile: str = DEFAULT_PROFILE) -> None:
+    """Fail before any rendering when a tier's packages (torch, kornia) or weight files are not installed (the
+    error names the ``[learned]`` extra and the install command), or when server ``profile`` has no values for a
+    tier (a :class:`~synthleak.errors.ConfigError` naming ``localize.profile``)."""
     for tier in tiers:
-        if not get_tier(tier).needs_torch:
+        spec = get_tier(tier)
+        try:
+            profile_tier(spec, profile)
+        except ValueError as exc:
+            raise ConfigError(f"localize.profile: {exc}") from None
+        if not spec.needs_torch:
             continue
         missing = [m for m in ("torch", "kornia") if importlib.util.find_spec(m) is None]
         if missing:
