@@ -60,12 +60,14 @@ def _cmd_tiers(args: argparse.Namespace) -> None:
     def matching(t: dict) -> str:
         if t["learned_matcher"]:
             return f"score > {t['match_threshold']:g}, top-k retrieved"
-        return f"ratio {t['ratio']:g}" + (", mutual" if t["mutual"] else "")
+        ratio = f"ratio {t['ratio']:g}" if 0 < t["ratio"] < 1 else "no ratio test"
+        return ratio + (", mutual" if t["mutual"] else "")
 
-    tiers = list_tiers()
+    tiers = list_tiers(args.profile)
     rows = [[t["name"], t["description"] or None, matching(t), t["min_inliers"], t["max_keypoints"] or None,
              t["pnp_max_error_px"], "learned" if t["needs_torch"] else None] for t in tiers]
-    print_rows(TIERS_COLUMNS, rows, json_out=args.json, title="localization feature tiers (least to most robust)",
+    print_rows(TIERS_COLUMNS, rows, json_out=args.json,
+               title=f"localization feature tiers (least to most robust), server profile {args.profile}",
                records=tiers)
 
 
@@ -270,6 +272,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("tiers", _cmd_tiers, "list the localization feature tiers (map --tier, [localize] tiers)", listing)
     p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--profile", default="strict", choices=("strict", "hloc"),
+                   help="server profile ([localize] profile): strict, or hloc (HLoc's published defaults)")
 
     p = command("scenes", _cmd_scenes, "write the USD stages of a study (rooms + attacker setups)")
     p.add_argument("config", help="config path or name in render_configs/ (e.g. ci-tiny)")
