@@ -156,7 +156,8 @@ class Defocus:
 @dataclass(frozen=True)
 class Vignetting:
     """Residual radial falloff of irradiance (after the ISP's lens-shading correction):
-    ``2 ** (-corner_stops * (r / r_corner) ** 2)``, r measured from the image centre. An r^2 law in stops is
+    ``2 ** (-corner_stops * (r / r_corner) ** 2)``, r measured from the image centre to a pixel centre
+    (r_corner: to a corner pixel's centre). An r^2 law in stops is
     the small-angle form of the cos^4 law (``-4 log2 cos(theta) ~ 2.9 tan^2(theta)``)."""
 
     corner_stops: float
@@ -564,10 +565,11 @@ def apply_defocus(x: np.ndarray, coc_px: np.ndarray, max_blur_px: float) -> np.n
 
 
 def vignetting_map(height: int, width: int, corner_stops: float) -> np.ndarray:
-    """(H, W, 1) float32 irradiance factor ``2 ** (-corner_stops * (r / r_corner) ** 2)`` at pixel centres."""
+    """(H, W, 1) float32 irradiance factor ``2 ** (-corner_stops * (r / r_corner) ** 2)`` at pixel centres;
+    r_corner is the radius of the corner pixels' centres, so they are exactly ``corner_stops`` darker."""
     v = (np.arange(height, dtype=np.float32) + 0.5 - height / 2.0) ** 2
     u = (np.arange(width, dtype=np.float32) + 0.5 - width / 2.0) ** 2
-    r2 = (v[:, None] + u[None, :]) / np.float32((height / 2.0) ** 2 + (width / 2.0) ** 2)
+    r2 = (v[:, None] + u[None, :]) / np.float32(((height - 1) / 2.0) ** 2 + ((width - 1) / 2.0) ** 2 or 1.0)
     return np.exp2(np.float32(-corner_stops) * r2)[..., None]
 
 
@@ -633,17 +635,31 @@ def _from_dn(dn: np.ndarray, black: float, white: float) -> np.ndarray:
     return (dn.astype(np.float32) - np.float32(black)) * np.float32(1.0 / (white - black))
 
 
-def jpeg_roundtrip(rgb: np.ndarray, params: Jpeg) -> tuple[np.ndarray, int]:
-    """Encode with Pillow's libjpeg at ``params`` (baseline, no optimize, fixed subsampling) and decode;
-    returns the decoded uint8 image and the JPEG's size in bytes."""
+def encode_jpeg(rgb: np.ndarray, params: Jpeg) -> bytes:
+    """JPEG bytes of a uint8 (H, W, 3) image from Pillow's libjpeg at ``params``: baseline, no ``optimize``,
+    not progressive, fixed subsampling, no metadata (the same pixels give the same bytes)."""
     buf = io.BytesIO()
-    Image.fromarray(rgb, "RGB").save(
-        buf, format="JPEG", quality=params.quality, subsampling=Jpeg.SUBSAMPLING[params.subsampling],
-        optimize=False, progressive=False,
-    )  # fmt: skip
-    data = buf.getvalue()
+    Image.fromarray(np.ascontiguousarray(rgb), "RGB").save(
+        buf,
+        format="JPEG",
+        quality=params.quality,
+        subsampling=Jpeg.SUBSAMPLING[params.subsampling],
+        optimize=False,
+        progressive=False,
+    )
+    return buf.getvalue()
+
+
+def decode_jpeg(data: bytes) -> np.ndarray:
+    """uint8 (H, W, 3) pixels of JPEG ``data`` (Pillow)."""
     with Image.open(io.BytesIO(data)) as im:
-        return np.asarray(im.convert("RGB")), len(data)
+        return np.asarray(im.convert("RGB"))
+
+
+def jpeg_roundtrip(rgb: np.ndarray, params: Jpeg) -> tuple[np.ndarray, int]:
+    """Encode (:func:`encode_jpeg`) and decode; returns the decoded image and the JPEG's size in bytes."""
+    data = encode_jpeg(rgb, params)
+    return decode_jpeg(data), len(data)
 
 
 def resize_longest(rgb: np.ndarray, params: Resize) -> np.ndarray:

@@ -104,7 +104,10 @@ WEB_PHOTO = CaptureParams(
     defocus=replace(PHONE_LENS, f_number=2.0),
     vignetting=Vignetting(corner_stops=0.5),
     exposure=Exposure(
-        reference_shutter_s=_ev100_shutter(150.0, 2.0, 100.0), target=0.18, max_shutter_s=1 / 30, iso_min=100.0,
+        reference_shutter_s=_ev100_shutter(150.0, 2.0, 100.0),
+        target=0.18,
+        max_shutter_s=1 / 30,
+        iso_min=100.0,
         iso_max=6400.0,
     ),  # fmt: skip
     sensor=replace(PHONE_SENSOR, shot_noise=2e-4, bit_depth=12, black_level=256 / 4095),
@@ -166,8 +169,12 @@ PROFILES: dict[str, DeviceProfile] = {
     "phone": DeviceProfile(PHONE, PHONE_VARIATION),
     "phone-low-light": DeviceProfile(
         PHONE_LOW_LIGHT,
-        replace(PHONE_VARIATION, illuminant_k=(2700.0, 300.0, 2200.0, 3500.0), wb_error_sigma_mired=20.0,
-                scene_lux=(2.0, 10.0)),  # fmt: skip
+        replace(
+            PHONE_VARIATION,
+            illuminant_k=(2700.0, 300.0, 2200.0, 3500.0),
+            wb_error_sigma_mired=20.0,
+            scene_lux=(2.0, 10.0),
+        ),  # fmt: skip
     ),
     "web-photo": DeviceProfile(
         WEB_PHOTO,
@@ -261,7 +268,8 @@ def draw_device(profile_name: str, seed: int) -> CaptureParams:
     if v.vignetting_stops is not None:
         out = replace(out, vignetting=Vignetting(corner_stops=uniform(v.vignetting_stops, u[4])))
     if v.tone_strength is not None:
-        out = replace(out, tone_curve=ToneCurve(strength=uniform(v.tone_strength, u[5])))
+        strength = round(uniform(v.tone_strength, u[5]), 2)  # 2 decimals: a handful of cached encoder tables
+        out = replace(out, tone_curve=ToneCurve(strength=strength))
     if v.jpeg_quality is not None and p.jpeg is not None:
         out = replace(out, jpeg=replace(p.jpeg, quality=integer(v.jpeg_quality, u[6])))
     if v.resize_longest_px is not None and p.resize is not None:
