@@ -79,6 +79,12 @@ def _walkthroughs() -> Iterable[str]:
     return WALKTHROUGHS
 
 
+def _capture_profiles() -> Iterable[str]:
+    from synthleak.render.devices import PROFILE_NAMES
+
+    return PROFILE_NAMES
+
+
 def _variant_kinds() -> Iterable[str]:
     from synthleak.assets.mesh import VARIANT_KINDS
 
@@ -169,9 +175,17 @@ class RenderConfig:
         "mitsuba_variant": one_of(_render_option("MITSUBA_VARIANTS")),
         "walkthrough": one_of(_walkthroughs),
         "genuine_closeup_fraction": within(0.0, 1.0),
+        "capture_map": one_of(_capture_profiles),
+        "capture_genuine": one_of(_capture_profiles),
+        "capture_attacker": one_of(_capture_profiles),
         "notes": anything,
     }
     """A rule per field, checked when the config loads."""
+    KEY_DEFAULTS: ClassVar[dict[str, Any]] = {
+        "capture_map": "ideal", "capture_genuine": "ideal", "capture_attacker": "ideal",
+    }  # fmt: skip
+    """Fields added after content keys were in use: :func:`config_to_dict` leaves them out at these values, so a
+    config that does not change them keeps its keys (and its cached renders and everything after them)."""
 
 
     renderer: str = "mitsuba"
@@ -202,6 +216,13 @@ class RenderConfig:
     genuine_closeup_fraction: float = 0.0
     """Share of the held-out genuine query frames taken 0.5-1.5 m from one object or a small group, as a
     phone user would (the rest are walk-through frames)."""
+    capture_map: str = "ideal"
+    """Camera profile (:mod:`synthleak.render.devices`) that photographs the mapping walk-through frames;
+    ``ideal``: the renderer's plain 8-bit encoding (docs/renderers.md, "Photographic capture")."""
+    capture_genuine: str = "ideal"
+    """Camera profile of the held-out genuine query frames (``split.json`` ``query``, close-ups included)."""
+    capture_attacker: str = "ideal"
+    """Camera profile of the attacker's orbit photos."""
     notes: str = ""
 
 

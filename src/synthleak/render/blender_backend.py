@@ -301,8 +301,12 @@ class BlenderRenderer:
 
     def render_rgb(self, camera: Camera, cam_from_world: np.ndarray, seed: int) -> np.ndarray:
         """sRGB uint8 (H, W, 3): ``spp`` samples, 1-px box filter."""
+        return linear_to_srgb_uint8(self.render_linear(camera, cam_from_world, seed))
+
+    def render_linear(self, camera: Camera, cam_from_world: np.ndarray, seed: int) -> np.ndarray:
+        """Linear radiance (H, W, 3) of the EXR's Combined pass, before :func:`linear_to_srgb_uint8`."""
         channels = self._render_exr(camera, cam_from_world, self.spp, seed, "BOX", 1.0)
-        return linear_to_srgb_uint8(_pass(channels, "Combined", "RGB"))
+        return _pass(channels, "Combined", "RGB")
 
     def render_ground_truth(self, camera: Camera, cam_from_world: np.ndarray
                             ) -> tuple[np.ndarray, np.ndarray]:
@@ -331,7 +335,8 @@ class BlenderRenderer:
 
     def render(self, camera: Camera, cam_from_world: np.ndarray, seed: int) -> Frame:
         depth, instance = self.render_ground_truth(camera, cam_from_world)
-        return Frame(rgb=self.render_rgb(camera, cam_from_world, seed), depth=depth, instance=instance)
+        linear = self.render_linear(camera, cam_from_world, seed)
+        return Frame(rgb=linear_to_srgb_uint8(linear), depth=depth, instance=instance, linear=linear)
 
 
 def _node_tree(idblock: Any) -> Any:

@@ -13,7 +13,15 @@ from typing import Any
 import numpy as np
 
 from synthleak.atomic_io import TEMP_PREFIX, atomic_write_bytes, atomic_write_text
-from synthleak.core.dataset import BOP_DEPTH_SCALE, DatasetError, encode_npy, encode_png, frame_paths, frame_stem
+from synthleak.core.dataset import (
+    BOP_DEPTH_SCALE,
+    DatasetError,
+    encode_npy,
+    encode_png,
+    frame_complete,
+    frame_paths,
+    frame_stem,
+)
 from synthleak.core.types import Camera, InstanceInfo
 from synthleak.geometry.poses import check_pose, invert, quat_wxyz_from_matrix
 from synthleak.portable import POSE_STEP, snap, snap_pose
@@ -88,6 +96,83 @@ def write_bop_rgb(seq_dir: Path) -> int:
             os.replace(tmp, target)
         made += 1
     return made
+
+
+# ------------------------------------------------------------------------------------------ capture records
+CAPTURE_RECORDS = "capture.json"
+"""A sequence photographed with a capture profile other than ``ideal``: frame name -> the capture record of
+:func:`synthleak.render.capture.capture` (``profile``, ``effects``, chosen exposure, noise, ...)."""
+PENDING_RECORDS = "capture-records"
+"""Per-frame records (``<stem>.json``) written by the render workers, merged into :data:`CAPTURE_RECORDS` by
+:func:`merge_capture_records` when the sequence's frames are rendered."""
+
+
+def _finite(value: Any) -> Any:
+    """``value`` with non-finite floats as strings (``"inf"``): JSON has no infinity."""
+    if isinstance(value, float | np.floating) and not np.isfinite(value):
+        return str(float(value))
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+def write_capture_record(seq_dir: Path, frame: str | int, record: dict[str, Any]) -> None:
+    """One frame's capture record, atomically, under :data:`PENDING_RECORDS` (before the frame's RGB: a complete
+    frame always has its record)."""
+    atomic_write_json(Path(seq_dir) / PENDING_RECORDS / f"{frame_stem(frame)}.json", _finite(record))
+
+
+def read_capture_records(seq_dir: Path) -> dict[str, dict[str, Any]]:
+    """Frame name -> capture record: :data:`CAPTURE_RECORDS` updated by any pending per-frame records; empty when
+    the sequence has neither (every frame ``ideal``)."""
+    seq_dir = Path(seq_dir)
+    path = seq_dir / CAPTURE_RECORDS
+    records: dict[str, dict[str, Any]] = {}
+    if path.is_file():
+        try:
+            records = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise DatasetError(f"{path}: not valid JSON: {exc}") from exc
+    for pending in sorted((seq_dir / PENDING_RECORDS).glob("*.json")):
+        try:
+            records[f"{pending.stem}.png"] = json.loads(pending.read_text())
+        except json.JSONDecodeError:  # only an atomic writer writes these; a damaged one is re-rendered
+            continue
+    return records
+
+
+def merge_capture_records(seq_dir: Path) -> bool:
+    """Fold the pending per-frame records into :data:`CAPTURE_RECORDS` (sorted by frame) and remove them; a
+    rerun after an interruption merges again. Returns whether there was anything to merge."""
+    pending_dir = Path(seq_dir) / PENDING_RECORDS
+    pending = sorted(pending_dir.glob("*.json")) if pending_dir.is_dir() else []
+    if not pending:
+        return False
+    atomic_write_json(Path(seq_dir) / CAPTURE_RECORDS, read_capture_records(seq_dir))
+    for path in pending:
+        path.unlink()
+    clean_temp_files(pending_dir)
+    pending_dir.rmdir()
+    return True
+
+
+def check_capture_plan(seq_dir: Path, frames: list[str], profiles: list[str]) -> None:
+    """Refuse to resume into a folder whose complete frames were photographed with other capture profiles (a
+    frame without a record is ``ideal``)."""
+    seq_dir = Path(seq_dir)
+    recorded_any = (seq_dir / CAPTURE_RECORDS).is_file() or (seq_dir / PENDING_RECORDS).is_dir()
+    if not recorded_any and all(p == "ideal" for p in profiles):
+        return
+    records = read_capture_records(seq_dir)
+    for frame, profile in zip(frames, profiles, strict=True):
+        got = records.get(frame, {}).get("profile", "ideal")
+        if got != profile and frame_complete(seq_dir, frame):
+            raise DatasetError(
+                f"{seq_dir / CAPTURE_RECORDS}: frame {frame} was photographed with capture profile {got!r}, the "
+                f"config asks for {profile!r} (another config); delete {seq_dir} to re-render it"
+            )
 
 
 # ----------------------------------------------------------------------------------------------- metadata

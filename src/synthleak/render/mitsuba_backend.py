@@ -430,6 +430,16 @@ class MitsubaRenderer:
         skip: set[int] | frozenset[int] = frozenset(),
     ) -> np.ndarray:
         """sRGB uint8 (H, W, 3) from mitsuba alone (``skip``: pass indices known to contribute nothing)."""
+        return linear_to_srgb_uint8(self.render_linear(camera, cam_from_world, seed, skip))
+
+    def render_linear(
+        self,
+        camera: Camera,
+        cam_from_world: np.ndarray,
+        seed: int,
+        skip: set[int] | frozenset[int] = frozenset(),
+    ) -> np.ndarray:
+        """Linear radiance float64 (H, W, 3), the sum of the passes, before :func:`linear_to_srgb_uint8`."""
         if not self._scenes:
             raise RuntimeError("MitsubaRenderer.render before prepare(scene)")
         mi = _mitsuba(self.variant)
@@ -440,14 +450,14 @@ class MitsubaRenderer:
                 continue
             pass_seed = (int(seed) + 0x9E3779B9 * k) & 0xFFFFFFFF
             total += np.asarray(mi.render(scene, sensor=sensor, seed=pass_seed, spp=self.spp))[..., :3]
-        return linear_to_srgb_uint8(total)
+        return total
 
     def render(self, camera: Camera, cam_from_world: np.ndarray, seed: int) -> Frame:
         if self._gt is None:
             raise RuntimeError("MitsubaRenderer.render before prepare(scene)")
         depth, instance = self._gt.render(camera, cam_from_world)
-        rgb = self.render_rgb(camera, cam_from_world, seed, self._dark_passes(camera, cam_from_world, depth))
-        return Frame(rgb=rgb, depth=depth, instance=instance)
+        linear = self.render_linear(camera, cam_from_world, seed, self._dark_passes(camera, cam_from_world, depth))
+        return Frame(rgb=linear_to_srgb_uint8(linear), depth=depth, instance=instance, linear=linear)
 
 
 def create_mitsuba_renderer(config: RenderConfig) -> MitsubaRenderer:

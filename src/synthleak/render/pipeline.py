@@ -5,12 +5,16 @@ interrupted run picks up where it stopped and finishes with the same bytes as an
 Sequence metadata (COLMAP, BOP, objects.json, split.json) is written before a sequence's frames (a rerun
 with another config or seed is refused instead of mixing frames) and ``manifest.json`` (sha256 of every
 file) last: its presence marks a finished dataset.
+
+Frames whose capture profile (``[render] capture_map`` / ``capture_genuine`` / ``capture_attacker``) is not
+``ideal`` are photographed (:func:`photograph`, docs/renderers.md "Photographic capture") before they are
+written; their records go to the sequence's ``capture.json``. ``ideal`` frames keep the backend's bytes.
 """
 
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -25,17 +29,23 @@ from synthleak.core.types import Camera, RenderScene
 from synthleak.errors import StageError
 from synthleak.executors import Executor, LocalExecutor, chunks
 from synthleak.portable import snap_pose
+from synthleak.render.base import Frame
 from synthleak.render.bop_full import write_bop_extras
+from synthleak.render.capture import capture, gamma22_to_linear, srgb8_to_linear
 from synthleak.render.dataset import (
     atomic_write_json,
+    check_capture_plan,
     check_existing_plan,
     clean_temp_files,
     make_split,
+    merge_capture_records,
     to_object_frame,
     write_bop_rgb,
+    write_capture_record,
     write_frame,
     write_sequence_metadata,
 )
+from synthleak.render.devices import draw_device
 from synthleak.render.furniture_views import closeup_views, furniture_walkthrough
 from synthleak.render.lighting import with_default_light
 from synthleak.render.registry import get_renderer
@@ -146,12 +156,67 @@ class SequenceJob:
 
 @dataclass
 class FrameTask:
-    """Frames ``indices`` (with their ``cam_from_world`` poses) of one sequence, for one worker."""
+    """Frames ``indices`` (with their ``cam_from_world`` poses and capture profiles) of one sequence, for one
+    worker. ``profiles`` is empty when every frame of the sequence is ``ideal`` (no capture records)."""
 
     job: SequenceJob
     config: StudyConfig
     indices: list[int]
     poses: list[np.ndarray]
+    profiles: list[str] = field(default_factory=list)
+
+
+# ------------------------------------------------------------------------------------------ photographic capture
+IDEAL = "ideal"
+"""The capture profile that keeps the renderer's own 8-bit encoding (no capture model runs)."""
+
+
+def capture_profiles(config: StudyConfig, kind: str, frames: list[str], split: dict[str, list[str]] | None
+                     ) -> list[str]:
+    """The capture profile of each frame: ``render.capture_attacker`` for an attacker sequence; in a scene
+    sequence ``render.capture_genuine`` for the held-out queries of ``split`` (close-ups included) and
+    ``render.capture_map`` for the mapping frames."""
+    rc = config.render
+    if kind == "attacker":
+        return [rc.capture_attacker] * len(frames)
+    query = set((split or {}).get("query", []))
+    return [rc.capture_genuine if f in query else rc.capture_map for f in frames]
+
+
+def _linear_radiance(frame: Frame, renderer: Any) -> np.ndarray:
+    """The frame's linear radiance: the backend's own (mitsuba, Blender), else its 8-bit ``rgb`` decoded by the
+    backend's ``rgb_encoding`` (pyrender: gamma 2.2, :func:`synthleak.render.capture.gamma22_to_linear`)."""
+    if frame.linear is not None:
+        return frame.linear
+    encoding = getattr(renderer, "rgb_encoding", "srgb")
+    if encoding == "gamma2.2":
+        return gamma22_to_linear(frame.rgb)
+    if encoding == "srgb":
+        return srgb8_to_linear(frame.rgb)
+    raise ValueError(f"renderer {getattr(renderer, 'name', renderer)!r}: unknown rgb_encoding {encoding!r}")
+
+
+def photograph(frame: Frame, renderer: Any, profile: str, root_seed: int, sequence: str, index: int
+               ) -> tuple[Frame, dict[str, Any]]:
+    """Frame ``index`` of ``sequence`` photographed with capture ``profile``: the device drawn from
+    ``derive_seed(root_seed, "capture-device", sequence, index)`` (:func:`synthleak.render.devices.draw_device`),
+    the sensor noise from ``derive_seed(root_seed, "capture-noise", sequence, index)``, the GT depth for
+    defocus. Returns the frame with the photo as ``rgb`` (depth and instance ids untouched) and the record.
+
+    Resizing is off (a profile's ``resize`` is dropped): a resized photo needs the intrinsics, depth and ids
+    scaled with it, a later step. Every other effect leaves pixels where they are, so the ground truth stays
+    exact; JPEG is encoded and decoded back into the frame's pixels (the dataset keeps PNG files)."""
+    device_seed = derive_seed(root_seed, "capture-device", sequence, index)
+    noise_seed = derive_seed(root_seed, "capture-noise", sequence, index)
+    drawn = draw_device(profile, device_seed)
+    params = replace(drawn, resize=None)  # resizing needs the intrinsics (and depth, ids) scaled: a later step
+    photo = capture(_linear_radiance(frame, renderer), params, noise_seed, depth=frame.depth)
+    if photo.rgb.shape != frame.rgb.shape:
+        raise RuntimeError(f"capture profile {profile!r} changed the frame size {frame.rgb.shape} to {photo.rgb.shape}")
+    record = {**photo.record, "device_seed": device_seed}
+    if drawn.resize is not None:
+        record["resize_skipped"] = True  # the profile resizes; the wired path does not yet
+    return replace(frame, rgb=photo.rgb, linear=None), record
 
 
 _WORKER_RENDERER: dict[str, Any] = {}
@@ -179,8 +244,14 @@ def render_frame_task(task: FrameTask) -> int:
     rc = task.config.render
     camera = Camera.from_hfov(rc.width, rc.height, rc.hfov_deg)
     renderer = _prepared_renderer(task.job, task.config)
-    for i, pose in zip(task.indices, task.poses, strict=True):
+    profiles = task.profiles or [IDEAL] * len(task.indices)
+    for i, pose, profile in zip(task.indices, task.poses, profiles, strict=True):
         frame = renderer.render(camera, pose, derive_seed(task.config.seed, "render", task.job.name, i))
+        if profile != IDEAL:
+            frame, record = photograph(frame, renderer, profile, task.config.seed, task.job.name, i)
+            write_capture_record(task.job.out_dir, frame_name(i), record)
+        elif task.profiles:  # a photographed sequence records every frame, its ideal ones too
+            write_capture_record(task.job.out_dir, frame_name(i), {"profile": IDEAL, "effects": []})
         write_frame(task.job.out_dir, frame_name(i), frame)
     return len(task.indices)
 
@@ -211,7 +282,9 @@ def plan_sequence(job: SequenceJob, config: StudyConfig, scene: RenderScene | No
         stored_poses, instances = to_object_frame(poses, scene.instances, scene.target_instance_id)
     else:
         stored_poses, instances = poses, [scene.instances[i] for i in sorted(scene.instances)]
+    profiles = capture_profiles(config, kind, frames, split)
     check_existing_plan(out_dir, camera, frames, stored_poses)
+    check_capture_plan(out_dir, frames, profiles)
     out_dir.mkdir(parents=True, exist_ok=True)
     clean_temp_files(out_dir)
     # the plan (poses, cameras, objects) first: a resumed run with another config is refused above
@@ -226,7 +299,9 @@ def plan_sequence(job: SequenceJob, config: StudyConfig, scene: RenderScene | No
         split=split,
     )
     todo = [i for i in range(len(frames)) if not frame_complete(out_dir, frames[i])]
-    return [FrameTask(job, config, idx, [poses[i] for i in idx]) for idx in chunks(todo, FRAMES_PER_TASK)]
+    photographed = any(p != IDEAL for p in profiles)
+    return [FrameTask(job, config, idx, [poses[i] for i in idx], [profiles[i] for i in idx] if photographed else [])
+            for idx in chunks(todo, FRAMES_PER_TASK)]
 
 
 def render_sequences(
@@ -243,6 +318,7 @@ def render_sequences(
     executor.map(render_frame_task, tasks, "render frames", progress)
     _WORKER_RENDERER.clear()  # the serial path renders in this process: free the last scene
     for job in jobs:  # the BOP scene folder's rgb/ (hard links: cheap, so also without the extras)
+        merge_capture_records(job.out_dir)
         write_bop_rgb(job.out_dir)
     if config.render.bop_extras:
         started = {id(t.job) for t in tasks}
@@ -387,16 +463,21 @@ def sha256_file(path: Path) -> str:
 
 
 def write_manifest(out_dir: Path, config: StudyConfig) -> Path:
-    """``manifest.json``: config, seed, package versions and the sha256 of every other file (sorted)."""
+    """``manifest.json``: config, seed, package versions and the sha256 of every other file (sorted); with a capture
+profile other than ``ideal`` also ``capture``: the profile of map, genuine and attacker frames."""
     out_dir = Path(out_dir)
     clean_temp_files(out_dir)
     # cache markers (synthleak.cache) are bookkeeping of the study, not dataset content
     files = sorted(p for p in out_dir.rglob("*") if p.is_file() and p.name not in (MANIFEST, MARKER))
-    manifest = {
+    manifest: dict[str, Any] = {
         "config": config_to_dict(config),
         "seed": config.seed,
         "packages": _versions(),
         "files": {p.relative_to(out_dir).as_posix(): sha256_file(p) for p in files},
     }
+    rc = config.render
+    capture = {"map": rc.capture_map, "genuine": rc.capture_genuine, "attacker": rc.capture_attacker}
+    if any(p != IDEAL for p in capture.values()):  # an all-ideal manifest keeps the bytes it had before capture
+        manifest["capture"] = capture
     atomic_write_json(out_dir / MANIFEST, manifest)
     return out_dir / MANIFEST

@@ -272,6 +272,10 @@ class PyrenderRenderer:
     """Renderer protocol implementation; see the module docstring."""
 
     name = "pyrender"
+    rgb_encoding = "gamma2.2"
+    """Frames carry no linear radiance: the shader writes ``pow(c, 1/2.2)``, rounded to 8 bits by OpenGL, so the
+    capture model takes :func:`synthleak.render.capture.gamma22_to_linear` of ``rgb`` (highlights above 1.0 are
+    already clipped and the shadows carry 8-bit banding)."""
 
     def __init__(self, shadows: bool = True) -> None:
         self._pr = _pyrender()
