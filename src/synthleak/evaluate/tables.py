@@ -23,7 +23,7 @@ import numpy as np
 from synthleak.atomic_io import atomic_write_text
 from synthleak.attack.presence import PresenceRecord, leave_one_scene_out
 from synthleak.evaluate.metrics import DEFAULT_THRESHOLDS
-from synthleak.portable import result_float
+from synthleak.portable import POSE_STEP, result_float, snap
 
 COLUMNS: tuple[str, ...] = (
     "room", "object", "model_id", "category", "tier", "aligner", "delta_r_deg", "delta_t_m", "present_gt",
@@ -255,8 +255,21 @@ def placement_summary(
 # --------------------------------------------------------------------------------------------- files
 
 
+def _is_pose(value: Any) -> bool:
+    """A 4x4 matrix of finite numbers (an array or nested lists), such as ``scene_from_object_est``."""
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return False
+    return array.shape == (4, 4) and bool(np.all(np.isfinite(array)))
+
+
 def plain(value: Any) -> Any:
-    """JSON-ready value: numpy scalars/arrays to Python, floats to 10 significant digits, NaN/inf to None."""
+    """JSON-ready value: numpy scalars/arrays to Python, NaN/inf to None; floats on the portable results grid
+    (:func:`synthleak.portable.result_float`: 6 significant digits), 4x4 poses on the pose grid (1e-9, so that
+    a rotation read back is still orthonormal to 1e-8)."""
+    if isinstance(value, np.ndarray | list | tuple) and len(value) == 4 and _is_pose(value):
+        return [[round(float(v), 9) + 0.0 for v in row] for row in snap(np.asarray(value, dtype=np.float64), POSE_STEP)]
     if isinstance(value, np.ndarray):
         return plain(value.tolist())
     if isinstance(value, list | tuple):
