@@ -207,7 +207,9 @@ def _cmd_report(args: argparse.Namespace) -> None:
         if args.readme:
             write_readme_presets(Path(args.readme), page.parent / "index.json")
             print(f"updated the presets table of {args.readme}", file=sys.stderr)
-    summary = results_summary(Path(args.study))
+        summary = json.loads(page.with_suffix(".json").read_text())  # the summary the page was written from
+    else:
+        summary = results_summary(Path(args.study))
     headline = summary["headline"]
     print_rows(HEADLINE_COLUMNS, [[r[c] for c in HEADLINE_COLUMNS] for r in headline], json_out=args.json,
                title=f"{summary['config']}: presence and placement at 10°/0.25 m ({summary['aligner']})",
