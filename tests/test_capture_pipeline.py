@@ -15,6 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import trimesh
 
 from synthleak.cache import cache_key
 from synthleak.config import (
@@ -25,16 +26,17 @@ from synthleak.config import (
     config_to_dict,
     load_config,
 )
-from synthleak.core.dataset import DatasetError, encode_png, frame_name, load_sequence
+from synthleak.core.dataset import DatasetError, OpenCVCamera, encode_png, frame_name, load_sequence
 from synthleak.core.types import Camera, RenderScene
 from synthleak.executors import LocalExecutor
 from synthleak.portable import snap_pose
 from synthleak.render import pipeline
 from synthleak.render.dataset import CAPTURE_RECORDS, PENDING_RECORDS
+from synthleak.render.distortion import project_camera_points, sample_positions
 from synthleak.render.mitsuba_backend import MitsubaRenderer
 from synthleak.render.pipeline import plan_poses, render_scene_sequence, write_manifest
 from synthleak.seeding import derive_seed
-from test_render import attacker_scene, bop_projection_agreement, room_scene, tiny_config, tree_hashes
+from test_render import attacker_scene, room_scene, tiny_config, tree_hashes
 from tiny_stages import write_config
 
 SMALL = dict(width=64, height=48, spp=2, scene_frames=4, attacker_frames=2, query_every=2)
@@ -105,23 +107,70 @@ def photo_pair(tmp_path_factory, room) -> tuple[Path, Path]:
     return ideal, phone
 
 
+def lens_projection_agreement(seq_dir: Path, canon: dict[int, trimesh.Trimesh], lens: bool = True
+                              ) -> tuple[int, int]:
+    """:func:`test_render.bop_projection_agreement` through each frame's own camera (its lens distortion, by
+    :func:`synthleak.render.distortion.project_camera_points`; ``lens=False``: its pinhole part only)."""
+    seq = load_sequence(seq_dir)
+    gt = json.loads((seq_dir / "bop" / "scene_gt.json").read_text())
+    visible_total, agree_total = 0, 0
+    for name in seq.frames:
+        own = seq.camera_of(name)
+        cam = own if lens else Camera(own.width, own.height, own.fx, own.fy, own.cx, own.cy)
+        depth, inst = seq.depth(name), seq.instance(name)
+        for entry in gt[str(int(name.removesuffix(".png")))]:
+            iid = entry["obj_id"]
+            if iid not in canon:
+                continue
+            pts, _ = trimesh.sample.sample_surface(canon[iid], 600, seed=iid)
+            cam_pts = pts @ np.array(entry["cam_R_m2c"]).reshape(3, 3).T + np.array(entry["cam_t_m2c"]) / 1000.0
+            cam_pts = cam_pts[cam_pts[:, 2] > 0.05]
+            projected = project_camera_points(cam, cam_pts)
+            assert projected is not None, name
+            uv = np.floor(np.stack(projected, axis=1)).astype(int)
+            inside = (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+            uv, z = uv[inside], cam_pts[inside, 2]
+            visible = np.abs(depth[uv[:, 1], uv[:, 0]] - z) < 0.02  # the surface point is what the pixel sees
+            visible_total += int(visible.sum())
+            agree_total += int((inst[uv[visible, 1], uv[visible, 0]] == iid).sum())
+    return visible_total, agree_total
+
+
 def test_phone_photos_differ_and_keep_the_ground_truth_exact(photo_pair, room):
     ideal, phone = photo_pair
     hi, hp = tree_hashes(ideal), tree_hashes(phone)
-    gt = [k for k in hi if k.startswith(GT_FILES)]
-    assert len(gt) > 20 and all(hp[k] == hi[k] for k in gt)
+    # the same poses, objects and split; the depth and masks are the lens's own (ray cast through it)
+    same = [k for k in hi if k in ("bop/scene_gt.json", "objects.json", "split.json")]
+    assert len(same) == 3 and all(hp[k] == hi[k] for k in same)
     images = [k for k in hi if k.startswith("images/")]
     assert images and all(hp[k] != hi[k] for k in images)
-
-    # the photo shows the scene where the ideal render does: no shift between the two
     a, b = load_sequence(ideal), load_sequence(phone)
+    assert a.frames == b.frames and all(np.array_equal(a.pose(f), b.pose(f)) for f in a.frames)
+    for frame in b.frames:
+        cam = b.camera_of(frame)  # each photo on its phone's lens, the render's size and principal point
+        assert isinstance(cam, OpenCVCamera) and cam.k1 != 0.0 and (cam.width, cam.height) == (96, 72)
+        assert (cam.cx, cam.cy) == (a.camera.cx, a.camera.cy)
+        assert not np.array_equal(a.depth(frame), b.depth(frame))
+
+    # the photo shows the scene where the ideal render seen through the frame's lens does: no shift between the
+    # two, and the warped render is closer to the photo than the render itself
+    corr = []
     for frame in a.frames:
-        grey = [cv2.cvtColor(s.rgb(frame), cv2.COLOR_RGB2GRAY).astype(np.float64) for s in (a, b)]
-        (dx, dy), _ = cv2.phaseCorrelate(*[(g - g.mean()) / (g.std() + 1e-9) for g in grey])
+        map_x, map_y = sample_positions(b.camera_of(frame), a.camera)
+        grey_a = cv2.cvtColor(a.rgb(frame), cv2.COLOR_RGB2GRAY).astype(np.float32)
+        warped = cv2.remap(grey_a, map_x, map_y, cv2.INTER_LINEAR).astype(np.float64)
+        photo = cv2.cvtColor(b.rgb(frame), cv2.COLOR_RGB2GRAY).astype(np.float64)
+        (dx, dy), _ = cv2.phaseCorrelate(*[(g - g.mean()) / (g.std() + 1e-9) for g in (warped, photo)])
         assert abs(dx) < 0.3 and abs(dy) < 0.3, (frame, dx, dy)
-    # and the ground truth of the photographed sequence is registered: object points land where the depth says
-    visible, agree = bop_projection_agreement(phone, room[1])
+        inner = (slice(4, -4), slice(4, -4))
+        corr.append([np.corrcoef(g[inner].ravel(), photo[inner].ravel())[0, 1] for g in (warped, grey_a)])
+    assert np.mean(corr, axis=0)[0] > np.mean(corr, axis=0)[1], corr
+    # and the ground truth of the photographed sequence is registered: object points land where the depth says,
+    # projected through each frame's own lens
+    visible, agree = lens_projection_agreement(phone, room[1])
     assert visible > 100 and agree / visible > 0.95
+    pin_visible, _ = lens_projection_agreement(phone, room[1], lens=False)
+    assert pin_visible < visible  # the lens matters: its pinhole part alone sees fewer points where they are
 
 
 def test_phone_photos_are_seeded_and_recorded(photo_pair, room, tmp_path):
@@ -170,10 +219,16 @@ def test_map_genuine_and_attacker_frames_get_their_own_profiles(tmp_path, room, 
         assert same == genuine  # genuine queries stay ideal here, map frames are photographed
     attacker = json.loads((mixed / "attackers" / "a00" / CAPTURE_RECORDS).read_text())
     assert sorted(attacker) == ["000000.png", "000001.png"]
-    for record in attacker.values():
-        assert record["profile"] == "web-photo" and record["resize_skipped"] is True
-        assert "resize" not in record["effects"] and "recompress" in record["effects"]
+    seq = load_sequence(mixed / "attackers" / "a00")
+    for frame, record in attacker.items():
+        assert record["profile"] == "web-photo" and "resize_skipped" not in record
+        assert {"distortion", "resize", "recompress"} <= set(record["effects"])
+        assert record["resize_scale"] == [1.0, 1.0]  # services never enlarge: a 64x48 photo keeps its size
         assert record["output_size"] == [64, 48]
+        cam = seq.camera_of(frame)  # each photo on its own lens, drawn per photo
+        assert isinstance(cam, OpenCVCamera) and (cam.width, cam.height) == (64, 48) and cam.k1 != 0.0
+        assert record["camera"]["model"] == "OPENCV" and record["camera"]["params"][4] == cam.k1
+    assert seq.camera_of("000000.png") != seq.camera_of("000001.png")
     assert without_manifest(tree_hashes(ideal / "attackers")) != without_manifest(tree_hashes(mixed / "attackers"))
 
 

@@ -14,6 +14,7 @@ from synthleak.assets.mesh import ObjectMesh
 from synthleak.config import ConfigError, config_from_dict, config_to_dict
 from synthleak.geometry.poses import transform_points
 from synthleak.scene.attacker_env import CANOPY_HEIGHT, PEDESTAL_HEIGHT, _target_pose_and_props, hall_shell
+from synthleak.scene.attacker_settings import SETTING_KINDS, min_room_size
 from synthleak.scene.placement import Item, place_items
 from synthleak.scene.plan import plan_study
 from synthleak.scene.room import SHELL_IDS, build_room_shell
@@ -432,7 +433,9 @@ def test_study_stages_layout_and_contract(stages: Path) -> None:
             o.name for o in read_scene_spec(stages / index["rooms"][0]["stage"]).objects if o.role == "shell"
         }
         assert {o.name for o in spec.objects if o.role == "shell"} >= room_shells - {"door", "backdrop"}
-        assert spec.room_size[0] > 8
+        # its own photo setting, large enough that the orbit stays inside its walls
+        assert att["setting"] in {k.name for k in SETTING_KINDS}
+        assert min(spec.room_size[:2]) >= min_room_size(np.asarray(target.extents)) - 1e-6
     for png in (stages / "textures").iterdir():
         assert png.suffix == ".png" and len(png.stem) == 16
 

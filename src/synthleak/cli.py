@@ -158,6 +158,12 @@ def _cmd_serve(args: argparse.Namespace) -> None:
           workers=args.workers)
 
 
+def _cmd_export_maps(args: argparse.Namespace) -> None:
+    from synthleak.study.export import export_maps
+
+    print(f"wrote {export_maps(Path(args.study), Path(args.out), depth=not args.no_depth)}")
+
+
 def _cmd_localize(args: argparse.Namespace) -> None:
     from synthleak.localize.images import InvalidImageError
     from synthleak.localize.localizer import Localizer
@@ -321,15 +327,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="map folder")
     p.add_argument("--config", help="study config whose [localize] section to use")
 
-    p = command("serve", _cmd_serve, "serve a map over HTTP on loopback (POST /localize, GET /health)")
-    p.add_argument("map")
+    p = command("serve", _cmd_serve, "serve a map over HTTP on loopback (POST /localize, GET /health)",
+                ". MAP may also be a folder of maps (a study's maps/, <server>/<room>/map.json): each is served at "
+                "/<server>/<room>/localize and listed at GET /maps (docs/service-protocol.md)")
+    p.add_argument("map", help="a map folder, or a folder of <server>/<room> maps (e.g. STUDY/maps)")
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8000)
     p.add_argument("--config", help="study config whose [localize] and [defense] sections to use")
     p.add_argument("--defense", action="store_true", help="turn the query defense on (X, k from the config)")
     p.add_argument("--decision-log", help="JSONL file logging every defense decision with its counts")
     p.add_argument("--workers", type=int, default=None,
-                   help="localizer processes answering queries in parallel (default: one per core, at most 8)")
+                   help="localizer processes answering queries in parallel (default: one per core, at most 8; "
+                        "a folder of maps: this many per map, default 1)")
+
+    p = command("export-maps", _cmd_export_maps,
+                "write what an outside localization service needs to build a study's maps",
+                ": per room the map frames' images, depth and COLMAP model with the ground-truth poses, and a "
+                "manifest; no query frame, attacker file or instance mask (docs/service-protocol.md)")
+    p.add_argument("study", help="a study folder whose render stage ran")
+    p.add_argument("--out", required=True, help="the export folder (new, empty or an earlier export)")
+    p.add_argument("--no-depth", action="store_true", help="leave out the map frames' ground-truth depth")
 
     p = command("localize", _cmd_localize, "localize images against a map (prints one JSON line each)")
     p.add_argument("map")
@@ -352,7 +369,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="append", metavar="STAGE",
                    help="redo a stage: render, maps, features, queries, attack, sweep, world-sweep, report "
                         "(repeatable; sweep / world-sweep redo every stage of their points)")
-    p.add_argument("--server", help="attack a running HTTP server instead of in-process localizers")
+    p.add_argument("--server", metavar="URL",
+                   help="attack running HTTP services instead of in-process localizers: one URL (a single map, or "
+                        "a service listing its maps at GET /maps) or a template with {server} {tier} {room} "
+                        "{room_index}, e.g. http://127.0.0.1:8000/{server}/{room} (docs/service-protocol.md)")
     p.add_argument("--workers", type=int, default=None,
                    help="worker processes for frames, maps and queries (default: the usable cores; 1: no pool)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",

@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 
 from synthleak.errors import ConfigError, SynthleakError
 from synthleak.paths import render_configs_dir, results_index_path
-from synthleak.schema import Rule, anything, at_least, each, from_table, one_of, ordered, within
+from synthleak.schema import Rule, anything, at_least, each, from_table, one_of, one_or_each, ordered, within
 
 
 def _tiers() -> Iterable[str]:
@@ -32,6 +32,12 @@ def _profiles() -> Iterable[str]:
     from synthleak.localize.tiers import profile_names
 
     return profile_names()
+
+
+def _representations() -> Iterable[str]:
+    from synthleak.localize.representations import representation_names
+
+    return representation_names()
 
 
 def _aligners() -> Iterable[str]:
@@ -77,6 +83,12 @@ def _walkthroughs() -> Iterable[str]:
     from synthleak.render.trajectories import WALKTHROUGHS
 
     return WALKTHROUGHS
+
+
+def _lighting_changes() -> Iterable[str]:
+    from synthleak.render.light_conditions import LIGHTING_CHANGES
+
+    return LIGHTING_CHANGES
 
 
 def _capture_profiles() -> Iterable[str]:
@@ -178,11 +190,15 @@ class RenderConfig:
         "capture_map": one_of(_capture_profiles),
         "capture_genuine": one_of(_capture_profiles),
         "capture_attacker": one_of(_capture_profiles),
+        "light_map": one_of(_lighting_changes),
+        "light_genuine": one_of(_lighting_changes),
+        "light_attacker": one_of(_lighting_changes),
         "notes": anything,
     }
     """A rule per field, checked when the config loads."""
     KEY_DEFAULTS: ClassVar[dict[str, Any]] = {
         "capture_map": "ideal", "capture_genuine": "ideal", "capture_attacker": "ideal",
+        "light_map": "same", "light_genuine": "same", "light_attacker": "same",
     }  # fmt: skip
     """Fields added after content keys were in use: :func:`config_to_dict` leaves them out at these values, so a
     config that does not change them keeps its keys (and its cached renders and everything after them)."""
@@ -223,6 +239,13 @@ class RenderConfig:
     """Camera profile of the held-out genuine query frames (``split.json`` ``query``, close-ups included)."""
     capture_attacker: str = "ideal"
     """Camera profile of the attacker's orbit photos."""
+    light_map: str = "same"
+    """Light of the mapping walk-through: ``same`` (the stage's lights) or ``varied`` (a lighting condition drawn
+    per sequence: lamps, daylight, colour temperature; :mod:`synthleak.render.light_conditions`)."""
+    light_genuine: str = "same"
+    """Light of the held-out genuine query frames (its own condition when ``varied``)."""
+    light_attacker: str = "same"
+    """Light of the attacker's orbit photos (its own condition when ``varied``)."""
     notes: str = ""
 
 
@@ -232,7 +255,8 @@ class LocalizeConfig:
 
     RULES: ClassVar[dict[str, Rule]] = {
         "tiers": each(one_of(_tiers), nonempty=True),
-        "profile": one_of(_profiles),
+        "profile": one_or_each(one_of(_profiles)),
+        "representation": one_or_each(one_of(_representations)),
         "retrieval": one_of(_retrieval_methods),
         "top_k": COUNT,
         "bow_branching": at_least(2),
@@ -243,16 +267,23 @@ class LocalizeConfig:
         "pairs_per_image": COUNT,
     }
     """A rule per field, checked when the config loads."""
-    KEY_DEFAULTS: ClassVar[dict[str, Any]] = {"profile": "strict"}
+    KEY_DEFAULTS: ClassVar[dict[str, Any]] = {"profile": "strict", "representation": "points"}
     """Fields added after content keys were in use: :func:`config_to_dict` leaves them out at these values, so a
     config that does not change them keeps its keys (and its cached maps, queries and report)."""
 
 
     tiers: list[str] = field(default_factory=lambda: ["sift"])
-    profile: str = "strict"
+    profile: str | list[str] = "strict"
     """Server profile: ``strict`` (each tier's own thresholds: stricter than published defaults for the learned
     tiers) or ``hloc`` (HLoc's defaults for each tier: matcher checks, LightGlue's 0.1, 12 px PnP, a pose from 3
-    inliers); :data:`synthleak.localize.tiers.PROFILES`, ``docs/learned-tiers.md``. Maps record it."""
+    inliers); :data:`synthleak.localize.tiers.PROFILES`, ``docs/learned-tiers.md``. Maps record it. A list
+    (``["strict", "hloc"]``) runs a server per tier and profile on the same query features; a server under a
+    profile other than ``strict`` is named ``<tier>@<profile>`` (:mod:`synthleak.localize.servers`)."""
+    representation: str | list[str] = "points"
+    """What a map stores: ``points`` (3D points, PnP) or ``line-cloud`` (a random 3D line through each point, never
+    the point; Speciale et al. CVPR 2019); :data:`synthleak.localize.representations.REPRESENTATIONS`. Maps record
+    it. A list runs a server per tier and representation; one over a map other than ``points`` is named
+    ``<tier>+<representation>`` (:mod:`synthleak.localize.servers`)."""
     retrieval: str = "bow"
     """``bow`` (vocabulary-tree bag of words, then the ``top_k`` map images) or ``exhaustive`` (every map image);
     docs/retrieval.md has the measured recall against exhaustive matching and the cost per query."""

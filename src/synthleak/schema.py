@@ -74,6 +74,26 @@ def each(item: Rule, nonempty: bool = False) -> Rule:
     return rule
 
 
+def one_or_each(item: Rule) -> Rule:
+    """A single value passing ``item``, or a non-empty list of distinct values that each pass it (a study axis:
+    ``profile = "hloc"`` or ``profile = ["strict", "hloc"]``)."""
+
+    def rule(value: Any, where: str) -> None:
+        if not isinstance(value, list):
+            item(value, where)
+            return
+        each(item, nonempty=True)(value, where)
+        if len(set(value)) != len(value):
+            raise ConfigError(f"{where}: values must be distinct, got {_fmt(value)}")
+
+    return rule
+
+
+def as_list(value: Any) -> list:
+    """A :func:`one_or_each` value as a list."""
+    return list(value) if isinstance(value, list | tuple) else [value]
+
+
 def ordered(item: Rule = anything) -> Rule:
     """A ``[min, max]`` pair whose values pass ``item``, with min <= max."""
 
@@ -134,7 +154,9 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
                 return _convert(value, arg, where)
             except ConfigError:
                 continue
-        raise ConfigError(f"{where}: value {value!r} matches none of {hint}")
+        kinds = " or ".join(getattr(a, "__name__", str(a)) if typing.get_origin(a) is None else str(a)
+                            for a in typing.get_args(hint))
+        raise ConfigError(f"{where}: expected {kinds}, got {value!r}")
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(f"{where}: expected a number, got {type(value).__name__}")

@@ -36,7 +36,8 @@ import numpy as np
 
 from synthleak.attack.align import umeyama
 from synthleak.attack.gravity import up_from_cameras
-from synthleak.core.dataset import load_sequence
+from synthleak.core.dataset import colmap_camera_model, load_sequence
+from synthleak.core.types import Camera
 from synthleak.geometry.poses import camera_centre, rotation_error_deg
 
 
@@ -150,6 +151,15 @@ def _object_points(rec, seq, target_id: int) -> tuple[np.ndarray, np.ndarray]:
     return xyz, on_object
 
 
+def camera_groups(seq: Any, names: list[str]) -> dict[Camera, list[str]]:
+    """``{camera: its frames}`` of ``names`` (each frame's own camera, in order of first use; frames in the
+    given order): what SfM extracts with one COLMAP camera each."""
+    groups: dict[Camera, list[str]] = {}
+    for name in names:
+        groups.setdefault(seq.camera_of(name), []).append(name)
+    return groups
+
+
 def sfm_local_poses(
     sequence: Any,
     object_extents: np.ndarray,
@@ -165,8 +175,14 @@ def sfm_local_poses(
     init_min_num_inliers: int = 30,
     abs_pose_min_num_inliers: int = 15,
 ) -> SfmLocalModel:
-    """pycolmap SfM (SIFT, exhaustive or sequential matching, incremental mapping, fixed PINHOLE intrinsics)
-    of an attacker sequence, scaled to metres with ``object_extents`` (the attacker's knowledge of the size).
+    """pycolmap SfM (SIFT, exhaustive or sequential matching, incremental mapping, fixed intrinsics) of an
+    attacker sequence, scaled to metres with ``object_extents`` (the attacker's knowledge of the size).
+
+    Intrinsics: each frame's own camera (``Sequence.camera_of``), one COLMAP camera per distinct one
+    (:func:`camera_groups`): ``PINHOLE``, or ``OPENCV`` / ``FULL_OPENCV`` for photos with a lens distortion
+    (web photos, each its own device and size after the resize), all held fixed in bundle adjustment (an
+    attacker that knows its photos' calibration). An all-pinhole sequence of one camera runs exactly the
+    single-camera SfM it always did.
 
     ``matcher``: ``sequential`` (capture order: each image with its 10 successors and those 2^k further on),
     ``exhaustive`` or ``auto`` (= sequential). An attacker films or photographs its object in order, and
@@ -203,17 +219,18 @@ def sfm_local_poses(
     database = workdir / "database.db"
     threads = num_threads if num_threads > 0 else (os.cpu_count() or 1)
 
-    cam = seq.camera
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "PINHOLE"
-    reader.camera_params = ",".join(repr(float(v)) for v in (cam.fx, cam.fy, cam.cx, cam.cy))
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = threads
     extraction.sift.max_num_features = max_features
     extraction.sift.peak_threshold = float(peak_threshold)
-    pycolmap.extract_features(database, seq.root / "images", image_names=names,
-                              camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
-                              extraction_options=extraction, device=pycolmap.Device.cpu)
+    for cam, group in camera_groups(seq, names).items():  # one COLMAP camera per distinct frame camera
+        model, params = colmap_camera_model(cam)  # PINHOLE, or OPENCV / FULL_OPENCV with the photo's lens
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = model
+        reader.camera_params = ",".join(repr(float(v)) for v in params)
+        pycolmap.extract_features(database, seq.root / "images", image_names=group,
+                                  camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
+                                  extraction_options=extraction, device=pycolmap.Device.cpu)
     pycolmap.set_random_seed(int(seed) % (2**31))
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = threads
@@ -339,6 +356,9 @@ def _sequence_digest(seq, names: list[str]) -> str:
     digest = hashlib.sha256()
     cam = seq.camera
     digest.update(repr((cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy)).encode())
+    if any(seq.camera_of(n) != cam for n in names):  # per-frame cameras (lens, resize); one camera: as before
+        for name in names:
+            digest.update(repr((name, *colmap_camera_model(seq.camera_of(name)))).encode())
     for name in names:
         digest.update(name.encode())
         digest.update(Path(seq.image_path(name)).read_bytes())

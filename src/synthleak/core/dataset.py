@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import io
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,11 +27,57 @@ BOP_DEPTH_SCALE = 0.25
 """BOP 16-bit depth PNGs hold depth_mm / BOP_DEPTH_SCALE: 0.25 mm steps up to 16.4 m (0.1 would stop at 6.5 m)."""
 
 INDEX_NAME = "index.json"
+RENDER_TWINS = "capture_render"
+"""``<sequence>/capture_render/<frame>.png``: the renderer's own 8-bit frame of the first photo of each capture
+profile in a photographed sequence, kept so a contact sheet and the report can put the render beside its photo."""
 """The stage index of a stages folder (``DATASET/stages/index.json``)."""
 
 
 class DatasetError(SynthleakError, ValueError):
     """A malformed dataset file; the message names the file and the field."""
+
+
+@dataclass(frozen=True)
+class OpenCVCamera(Camera):
+    """A :class:`Camera` with OpenCV radial-tangential (Brown-Conrady) distortion: COLMAP's ``OPENCV`` model
+    (``fx fy cx cy k1 k2 p1 p2``), or ``FULL_OPENCV`` when ``k3`` is not 0. A camera-frame point (x, y, 1)
+    is distorted in normalised coordinates, then ``u = fx x_d + cx`` (pixel-centre convention of
+    :class:`Camera`, as COLMAP's)."""
+
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+
+    @property
+    def dist_coeffs(self) -> np.ndarray:
+        """OpenCV's ``distCoeffs`` ``[k1, k2, p1, p2, k3]``."""
+        return np.array([self.k1, self.k2, self.p1, self.p2, self.k3], dtype=np.float64)
+
+
+def camera_dist_coeffs(camera: Camera) -> np.ndarray | None:
+    """OpenCV ``[k1, k2, p1, p2, k3]`` of ``camera``; ``None`` for a pinhole camera (no distortion)."""
+    return camera.dist_coeffs if isinstance(camera, OpenCVCamera) else None
+
+
+def colmap_camera_model(camera: Camera) -> tuple[str, list[float]]:
+    """COLMAP model name and params of ``camera``: ``PINHOLE`` (fx fy cx cy), ``OPENCV`` (+ k1 k2 p1 p2) or
+    ``FULL_OPENCV`` (+ k1 k2 p1 p2 k3 k4 k5 k6, with k4 = k5 = k6 = 0) when k3 is not 0."""
+    base = [float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy)]
+    if not isinstance(camera, OpenCVCamera):
+        return "PINHOLE", base
+    if camera.k3 == 0.0:
+        return "OPENCV", base + [float(camera.k1), float(camera.k2), float(camera.p1), float(camera.p2)]
+    return "FULL_OPENCV", base + [float(c) for c in camera.dist_coeffs] + [0.0, 0.0, 0.0]
+
+
+def scaled_camera(camera: Camera, width: int, height: int) -> Camera:
+    """``camera`` for its image resized to ``width`` x ``height`` (corners to corners: ``fx, cx *= W' / W`` in the
+    pixel-corner convention of :class:`Camera`; distortion, in normalised coordinates, unchanged)."""
+    sx, sy = width / camera.width, height / camera.height
+    return replace(camera, width=int(width), height=int(height), fx=camera.fx * sx, fy=camera.fy * sy,
+                   cx=camera.cx * sx, cy=camera.cy * sy)
 
 
 # ---------------------------------------------------------------------------------------------- encodings
@@ -146,6 +192,13 @@ class Sequence:
     frame: str = "world"
     target_instance_id: int | None = None
     split: dict[str, list[str]] = field(default_factory=dict)
+    cameras: dict[str, Camera] = field(default_factory=dict)
+    """``{frame name: camera}``: each frame's own camera (``colmap/images.txt`` CAMERA_ID), which differs from
+    :attr:`camera` (camera 1) when the capture distorted or resized it (:meth:`camera_of`)."""
+
+    def camera_of(self, frame: str | int) -> Camera:
+        """The camera of ``frame`` (its distortion, if any, included: :class:`OpenCVCamera`)."""
+        return self.cameras.get(self._key(frame), self.camera)
 
     @property
     def cam_from_world(self) -> dict[str, np.ndarray]:
@@ -193,7 +246,8 @@ class Sequence:
         return read_rgb(self.image_path(frame))
 
     def depth(self, frame: str | int) -> np.ndarray:
-        return read_depth(self.depth_path(frame), (self.camera.height, self.camera.width))
+        camera = self.camera_of(frame)
+        return read_depth(self.depth_path(frame), (camera.height, camera.width))
 
     def instance(self, frame: str | int) -> np.ndarray:
         return read_instance(self.instance_path(frame))
@@ -228,19 +282,62 @@ def _floats(path: Path, field_name: str, tokens: list[str]) -> np.ndarray:
     return values
 
 
+COLMAP_MODELS = {"PINHOLE": 4, "OPENCV": 8, "FULL_OPENCV": 12}
+"""The COLMAP camera models of a sequence's ``cameras.txt`` and their number of params."""
+
+
+def _colmap_camera_line(path: Path, line: str) -> tuple[int, Camera]:
+    tok = line.split()
+    model = tok[1] if len(tok) > 1 else ""
+    if model not in COLMAP_MODELS or len(tok) != 4 + COLMAP_MODELS[model]:
+        raise DatasetError(f"{path}: camera line: expected 'ID PINHOLE W H fx fy cx cy' or 'ID OPENCV W H fx fy cx "
+                           f"cy k1 k2 p1 p2' (or FULL_OPENCV with 8 coefficients), got {line!r}")
+    try:
+        camera_id, width, height = int(tok[0]), int(tok[2]), int(tok[3])
+    except ValueError as exc:
+        raise DatasetError(f"{path}: camera id/width/height are not integers: {tok[:4]}") from exc
+    params = [float(v) for v in _floats(path, f"camera {camera_id} params", tok[4:])]
+    if model == "PINHOLE":
+        return camera_id, Camera(width, height, *params)
+    if model == "FULL_OPENCV" and any(params[9:]):
+        raise DatasetError(f"{path}: camera {camera_id}: FULL_OPENCV k4, k5, k6 must be 0 (rational distortion is "
+                           f"not supported), got {params[9:]}")
+    return camera_id, OpenCVCamera(width, height, *params[:9])
+
+
+def read_colmap_cameras(path: Path) -> dict[int, Camera]:
+    """``{CAMERA_ID: camera}`` of a COLMAP cameras.txt (``PINHOLE``, ``OPENCV`` or ``FULL_OPENCV``)."""
+    cameras: dict[int, Camera] = {}
+    for line in _data_lines(path):
+        camera_id, camera = _colmap_camera_line(path, line)
+        if camera_id in cameras:
+            raise DatasetError(f"{path}: camera id {camera_id} appears twice")
+        cameras[camera_id] = camera
+    if not cameras:
+        raise DatasetError(f"{path}: no camera")
+    return cameras
+
+
 def read_colmap_camera(path: Path) -> Camera:
+    """The one camera of a single-camera COLMAP cameras.txt."""
     lines = _data_lines(path)
     if len(lines) != 1:
         raise DatasetError(f"{path}: expected exactly one camera, found {len(lines)}")
-    tok = lines[0].split()
-    if len(tok) != 8 or tok[1] != "PINHOLE":
-        raise DatasetError(f"{path}: camera 1: expected 'ID PINHOLE W H fx fy cx cy', got {lines[0]!r}")
-    fx, fy, cx, cy = _floats(path, "camera params", tok[4:8])
-    try:
-        width, height = int(tok[2]), int(tok[3])
-    except ValueError as exc:
-        raise DatasetError(f"{path}: camera width/height are not integers: {tok[2:4]}") from exc
-    return Camera(width, height, float(fx), float(fy), float(cx), float(cy))
+    return _colmap_camera_line(path, lines[0])[1]
+
+
+def read_colmap_image_cameras(path: Path) -> dict[str, int]:
+    """``{NAME: CAMERA_ID}`` of a COLMAP images.txt (checked by :func:`read_colmap_images`)."""
+    lines = [line for line in path.read_text().splitlines() if not line.startswith("#")]
+    ids: dict[str, int] = {}
+    for line in lines[0::2]:
+        tok = line.split()
+        if len(tok) == 10:
+            try:
+                ids[tok[9]] = int(tok[8])
+            except ValueError as exc:
+                raise DatasetError(f"{path}: image {tok[9]}: CAMERA_ID {tok[8]!r} is not an integer") from exc
+    return ids
 
 
 def read_colmap_images(path: Path) -> dict[str, np.ndarray]:
@@ -300,8 +397,16 @@ def load_sequence(path: Path) -> Sequence:
     root = Path(path)
     if not root.is_dir():
         raise DatasetError(f"{root}: no such sequence folder")
-    camera = read_colmap_camera(root / "colmap" / "cameras.txt")
+    camera_path = root / "colmap" / "cameras.txt"
+    all_cameras = read_colmap_cameras(camera_path)
     poses = read_colmap_images(root / "colmap" / "images.txt")
+    cameras: dict[str, Camera] = {}
+    for name, camera_id in read_colmap_image_cameras(root / "colmap" / "images.txt").items():
+        if camera_id not in all_cameras:
+            raise DatasetError(f"{root / 'colmap' / 'images.txt'}: image {name}: CAMERA_ID {camera_id} is not in "
+                               f"{camera_path}")
+        cameras[name] = all_cameras[camera_id]
+    camera = all_cameras[min(all_cameras)]
     objects_path = root / "objects.json"
     objects = read_json(objects_path)
     for key in ("instances", "frame", "target_instance_id"):
@@ -336,6 +441,7 @@ def load_sequence(path: Path) -> Sequence:
         name=root.name,
         kind=kind,
         camera=camera,
+        cameras=cameras,
         frames=sorted(poses),
         poses=poses,
         objects=instances,

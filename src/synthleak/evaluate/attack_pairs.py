@@ -17,6 +17,7 @@ from synthleak.attack.presence_features import attack_features
 from synthleak.attack.run import run_attack
 from synthleak.evaluate.lookalikes import absent_kind, lookalike_ids, top_instance
 from synthleak.evaluate.score import score_placement
+from synthleak.evaluate.shell_share import count_shell_top
 from synthleak.localize.visibility import count_retrieving, read_image_instances
 
 
@@ -102,6 +103,7 @@ def object_rows(attack: Any, obj: Mapping[str, Any], target: Any, local: Mapping
                     "delta_r_deg": float(delta_r), "delta_t_m": float(delta_t), "present_gt": gt is not None,
                     "eps": float(alignment.eps), "decision": False, "n_queries": len(sent),
                     "n_no_local_pose": len(sent) - len(local_sent), "n_localized": len(server), **funnel,
+                    "n_shell_top": count_shell_top(q for q in queries if q["frame"] in server),
                     **score, "magnitude": magnitude, "kind": kind,
                     "absent_kind": kind_of_pair, **trial,
                 })

@@ -6,6 +6,7 @@ from collections.abc import Sequence
 from statistics import fmean
 
 from synthleak.evaluate.tables import group_rows, markdown_table, precision_recall
+from synthleak.localize.servers import base_tier
 
 PAPER_THRESHOLDS: tuple[tuple[float, float], ...] = ((10.0, 0.25), (30.0, 0.5), (60.0, 2.0))
 """Table 1's threshold pairs (δr in degrees, δt in metres), in the order of its columns."""
@@ -60,7 +61,7 @@ def tier_ordering(rows: Sequence[dict], aligner: str = "alg1") -> list[dict]:
     for (tier,), group in sorted(group_rows(mine, ["tier"]).items()):
         first = (group[0]["delta_r_deg"], group[0]["delta_t_m"])
         pairs = [r for r in group if (r["delta_r_deg"], r["delta_t_m"]) == first]
-        row: dict = {"tier": tier, "paper_analogue": PAPER_ANALOGUE.get(tier, "-"),
+        row: dict = {"tier": tier, "paper_analogue": PAPER_ANALOGUE.get(base_tier(tier), "-"),
                      "queries_present": _localized(pairs, True), "queries_absent": _localized(pairs, False)}
         for (dr, dt), sub in group_rows(group, ["delta_r_deg", "delta_t_m"]).items():
             pr = precision_recall(sub)
@@ -77,6 +78,27 @@ def _localized(rows: Sequence[dict], present: bool) -> str:
 
 PRESENCE_RULES = {"eps": "ε rule", "classifier": "presence classifier"}
 """How the report names each ``[attack] presence`` rule."""
+
+
+def _suffix(server: str) -> str:
+    """A server name's ``@profile+representation`` part ('' for a plain tier)."""
+    return server[len(base_tier(server)):]
+
+
+def _verdict(ours: Sequence[dict], key_r: str, suffix: str) -> str:
+    """The paper's claim (learned > SIFT in recall) tested among the servers of one profile and representation
+    ('' where they include no learned tier beside ``sift``)."""
+    group = [r for r in ours if _suffix(r["tier"]) == suffix and key_r in r]
+    sift = next((r for r in group if base_tier(r["tier"]) == "sift"), None)
+    learned = [r for r in group if base_tier(r["tier"]) in PAPER_ANALOGUE and base_tier(r["tier"]) != "sift"]
+    where = f" (servers `*{suffix}`)" if suffix else ""
+    if not (learned and sift):
+        return ""
+    better = [r["tier"] for r in learned if r[key_r] > sift[key_r]]
+    if better:
+        names = ", ".join(f"`{t}`" for t in better)
+        return f"Learned tiers with a higher recall than `{sift['tier']}`{where}: {names}."
+    return f"No learned tier has a higher recall than `{sift['tier']}`{where} (the paper found the opposite)."
 
 
 def tier_ordering_markdown(rows: Sequence[dict], aligner: str = "alg1", presence: str = "eps") -> str:
@@ -97,15 +119,10 @@ def tier_ordering_markdown(rows: Sequence[dict], aligner: str = "alg1", presence
     paper_order = " > ".join(f"{r['tier']} ({r[key_r]:.2f})" for r in sorted(paper_rows, key=lambda r: -r[key_r]))
     ours_sorted = sorted((r for r in ours if key_r in r), key=lambda r: -r[key_r])
     ours_order = " > ".join(f"`{r['tier']}` ({r[key_r]:.2f})" for r in ours_sorted) or "-"
-    learned = [r for r in ours if r["tier"] in PAPER_ANALOGUE and r["tier"] != "sift" and key_r in r]
-    sift = next((r for r in ours if r["tier"] == "sift" and key_r in r), None)
-    if learned and sift:
-        better = [r["tier"] for r in learned if r[key_r] > sift[key_r]]
-        verdict = (f"Learned tiers with a higher recall than `sift` here: {', '.join(f'`{t}`' for t in better)}."
-                   if better else "No learned tier has a higher recall than `sift` here (the paper found the "
-                   "opposite).")
-    else:
-        verdict = "This study ran no learned tier beside `sift`: the paper's ordering is not tested."
+    verdicts = [_verdict(ours, key_r, suffix) for suffix in dict.fromkeys(_suffix(r["tier"]) for r in ours)]
+    tested = [v for v in verdicts if v]
+    verdict = (" ".join(tested) if tested
+               else "This study ran no learned tier beside `sift`: the paper's ordering is not tested.")
     return "\n".join([
         f"Recall at {first[0]:g}°, {first[1]:g} m, paper (Table 1, mean over its 7 scenes): {paper_order}.",
         f"This study (aligner `{aligner}`, {PRESENCE_RULES.get(presence, presence)}, pooled over rooms): "

@@ -18,8 +18,10 @@ from typing import Any
 
 from synthleak.atomic_io import atomic_write_text
 from synthleak.evaluate.paper_reference import PRESENCE_RULES
+from synthleak.evaluate.shell_share import shell_share
 from synthleak.evaluate.tables import markdown_table, placement_stats, plain, precision_recall, read_results
 from synthleak.provenance import read_run_record
+from synthleak.schema import as_list
 
 HEADLINE = (10.0, 0.25)
 """The headline thresholds (δr degrees, δt metres): the paper's strictest."""
@@ -138,6 +140,7 @@ def results_summary(study: Path, name: str | None = None) -> dict[str, Any]:
         "headline": [{k: _finite(v) for k, v in r.items()} for r in headline_rows(rows, aligner)],
         "thresholds": [{k: _finite(v) for k, v in r.items()} for r in all_thresholds_rows(rows)],
         "genuine": genuine_rows(load("genuine_localization.json")),
+        "shell": [{k: _finite(v) for k, v in r.items()} for r in shell_share(rows)],
         "defense": [{k: v for k, v in t.items() if k != "tier"} for t in tradeoff],
         "world": [{k: _finite(v) for k, v in r.items()} for r in world.get("rooms", [])],
         "plots": [],
@@ -180,6 +183,11 @@ def render_page(summary: Mapping[str, Any]) -> str:
         "## Genuine queries (held-out frames) localized\n",
         markdown_table(s["genuine"], ["tier", "queries", "localized", "closeups", "closeups_localized"]),
     ]
+    if s.get("shell"):
+        parts += ["## Attacker queries localized on the room's shell\n",
+                  "Localized attacker queries with most PnP inliers on the room's shell (chance background "
+                  "matches; target under 10 %), over present / absent pairs.\n",
+                  markdown_table(_none_as_nan(s["shell"]), list(s["shell"][0]), digits=2)]
     if s["defense"]:
         parts += ["## Defense trade-off (pooled over tiers)\n",
                   "`min_fraction` X and `min_instances` k of the paper's defense; shares of the localized queries.\n",
@@ -254,6 +262,10 @@ def presets_markdown(index: Path | None = None, folder: Path | None = None) -> s
         config = load_config(preset.path)
         scale = (f"{config.scenes.rooms} rooms, {config.render.width}x{config.render.height}, "
                  f"{len(config.localize.tiers)} tier{'s' if len(config.localize.tiers) > 1 else ''}")
+        for axis in ("profile", "representation"):
+            values = as_list(getattr(config.localize, axis))
+            if len(values) > 1:
+                scale += f" x {len(values)} {axis}s"
         cost = preset.cost
         wall = f"{cost}, {_short_cpu(cost.cpu)}" if cost else "not measured"
         page = f"[{Path(cost.page).name}]({cost.page})" if cost and cost.page else "–"

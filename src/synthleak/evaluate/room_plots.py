@@ -10,13 +10,14 @@ import numpy as np
 
 from synthleak.core.dataset import load_sequence
 from synthleak.evaluate.plots import plot_room_topdown
+from synthleak.localize.servers import study_servers
 
 
 def room_plots(config: Any, rooms: Sequence[Mapping[str, Any]], scenes: Mapping[str, Path],
                rows: Sequence[dict[str, Any]], out_dir: Path) -> list[Path]:
     """``<room>_topdown.png`` in ``out_dir`` per room (``rooms``: the ``index.json`` entries; ``scenes``: room ->
-    scene sequence): the first tier, last aligner and middle thresholds of ``config``."""
-    tier, aligner = config.localize.tiers[0], config.attack.aligners[-1]
+    scene sequence): the first server (tier), last aligner and middle thresholds of ``config``."""
+    tier, aligner = study_servers(config.localize)[0].name, config.attack.aligners[-1]
     delta_r, delta_t = config.attack.thresholds[len(config.attack.thresholds) // 2]
     out = []
     for room in rooms:

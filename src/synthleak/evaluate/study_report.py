@@ -12,6 +12,7 @@ from synthleak.evaluate.compare import side_by_side_markdown
 from synthleak.evaluate.paper_reference import PRESENCE_RULES, tier_ordering_markdown
 from synthleak.evaluate.plots import leakage_vs_magnitude, plot_leakage_vs_magnitude, plot_leakage_vs_world
 from synthleak.evaluate.sfm_summary import sfm_objects_markdown
+from synthleak.evaluate.shell_share import shell_share_markdown
 from synthleak.evaluate.tables import (
     markdown_table,
     placement_summary,
@@ -22,6 +23,7 @@ from synthleak.evaluate.tables import (
 )
 from synthleak.evaluate.world_summary import world_markdown
 from synthleak.evaluate.world_sweep import leakage_vs_world
+from synthleak.localize.servers import study_servers
 
 
 def world_sweep_section(config: Any, rows: list[dict[str, Any]], plots_dir: Path, plots: list[Path]) -> list[str]:
@@ -96,7 +98,8 @@ def report_markdown(config: Any, index: Mapping[str, Any], world: Mapping[str, A
         f"seed {config.seed}; {len(index['rooms'])} rooms; {len(index['attacker_objects'])} attacker objects; "
         f"{n_present} present (room, object) pairs of {len(index['rooms']) * len(index['attacker_objects'])}; "
         f"renderer {config.render.renderer} {config.render.width}x{config.render.height}; "
-        f"tiers {', '.join(config.localize.tiers)}; aligners {', '.join(config.attack.aligners)}; "
+        f"servers {', '.join(s.name for s in study_servers(config.localize))}; "
+        f"aligners {', '.join(config.attack.aligners)}; "
         f"local model {config.attack.local_model}; presence decided by the "
         f"{PRESENCE_RULES.get(config.attack.presence, config.attack.presence)} (`decision`).\n",
         *world_markdown(world),
@@ -120,6 +123,11 @@ def report_markdown(config: Any, index: Mapping[str, Any], world: Mapping[str, A
         "(`shares_sku`), else one of its category (`same_category`), else neither (`unrelated`). "
         "*Localized on a look-alike*: a localized query has most PnP inliers on such an instance.\n",
         absent_funnel_markdown(rows),
+        "## Attacker queries localized on the room's shell\n",
+        "Localized attacker queries with most PnP inliers on the room's shell (floor, walls, ceiling, door, "
+        "window backdrop): chance matches of the attacker's background to the room's, not the look-alike leak "
+        "(`synthleak.evaluate.shell_share`; target under 10 %).\n",
+        shell_share_markdown(rows),
         "## Presence by kind of absent pair\n",
         "False positives among the absent pairs of each kind, and the precision counting only that kind of "
         "absent pair (all present pairs).\n",

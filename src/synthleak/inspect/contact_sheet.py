@@ -5,7 +5,10 @@ RGB with each object's projected 3D box and id``. Boxes come from the BOP ground
 (``bop/scene_gt.json`` cam_R_m2c / cam_t_m2c in mm, ``bop/scene_camera.json`` cam_K) and the extents of
 ``objects.json`` in the canonical frame (x in [-ex/2, ex/2], y in [-ey/2, ey/2], z in [0, ez]), so a box that
 misses its object in the mask panel means the ground truth is wrong. Room-shell pieces get no box.
-The sheet is ``frames * H`` pixels high and ``4 * W + BAR_W`` wide; drawing is OpenCV only (deterministic).
+A photographed sequence (``[render] capture_*`` other than ``ideal``) keeps the render of the first photo of each
+capture profile (``capture_render/``): the sheet ends with one row per such frame, ``render | photo (its profile)
+| |photo - render| x 4 | photo with boxes``. Boxes of a distorted frame are drawn through its lens.
+The sheet is ``rows * H`` pixels high and ``4 * W + BAR_W`` wide; drawing is OpenCV only (deterministic).
 """
 
 from __future__ import annotations
@@ -17,8 +20,18 @@ import cv2
 import numpy as np
 
 from synthleak.atomic_io import atomic_write_bytes
-from synthleak.core.dataset import DatasetError, Sequence, encode_png, load_sequence, read_json
+from synthleak.core.dataset import (
+    RENDER_TWINS,
+    DatasetError,
+    Sequence,
+    camera_dist_coeffs,
+    encode_png,
+    load_sequence,
+    read_json,
+    read_rgb,
+)
 from synthleak.geometry.poses import make_pose, transform_points
+from synthleak.render.dataset import read_capture_records
 
 BAR_W = 44
 """Width in pixels of the depth scale bar appended to the depth panel."""
@@ -172,14 +185,35 @@ def scale_bar(height: int, lo: float, hi: float) -> np.ndarray:
     return bar
 
 
-def box_overlay(rgb: np.ndarray, k: np.ndarray, boxes: dict[int, np.ndarray]) -> np.ndarray:
-    """``rgb`` with each box (camera-frame corners) drawn as its 12 edges and its id, in the id's colour."""
+LENS_STEPS = 16
+"""Pieces each box edge is drawn in through a distorting lens (a straight edge images as a curve)."""
+
+
+def lens_segments(k: np.ndarray, dist: np.ndarray, corners: np.ndarray, near: float = CLIP_NEAR) -> list[np.ndarray]:
+    """:func:`box_segments` through a lens with OpenCV ``dist`` coefficients: each clipped edge as
+    :data:`LENS_STEPS` pieces, every point projected with ``cv2.projectPoints``."""
+    pinhole = np.eye(3)
+    out = []
+    for seg in box_segments(pinhole, corners, near):
+        ends = np.concatenate([seg, np.ones((2, 1))], axis=1)  # normalised image points of the clipped edge
+        t = np.linspace(0.0, 1.0, LENS_STEPS + 1)[:, None]
+        points = (1 - t) * ends[0] + t * ends[1]
+        uv, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), k, dist)
+        uv = uv.reshape(-1, 2)
+        out.extend(uv[i:i + 2] for i in range(LENS_STEPS))
+    return out
+
+
+def box_overlay(rgb: np.ndarray, k: np.ndarray, boxes: dict[int, np.ndarray], dist: np.ndarray | None = None
+                ) -> np.ndarray:
+    """``rgb`` with each box (camera-frame corners) drawn as its 12 edges and its id, in the id's colour
+    (``dist``: the frame's OpenCV distortion, the edges then drawn through the lens)."""
     out = np.ascontiguousarray(rgb.copy())
     shift = 4  # sub-pixel precision of cv2 drawing: coordinates * 16
     h, w = out.shape[:2]
     for obj_id in sorted(boxes):
         colour = id_colour(obj_id)
-        segments = box_segments(k, boxes[obj_id])
+        segments = box_segments(k, boxes[obj_id]) if dist is None else lens_segments(k, dist, boxes[obj_id])
         for seg in segments:
             pts = np.round((np.clip(seg, -8 * max(h, w), 8 * max(h, w)) - 0.5) * (1 << shift)).astype(np.int64)
             cv2.line(
@@ -206,12 +240,31 @@ def sheet_rows(seq: Sequence, frames: list[str]) -> list[np.ndarray]:
         depth_panel = np.concatenate([depth_image(depths[f], lo, hi), scale_bar(rgb.shape[0], lo, hi)], axis=1)
         labelled = np.ascontiguousarray(rgb.copy())
         _text(labelled, f.removesuffix(".png"), (2, 10), (255, 255, 255))
-        rows.append(
-            np.concatenate(
-                [labelled, depth_panel, instance_image(seq.instance(f)), box_overlay(rgb, *camera_boxes(seq, f))],
-                axis=1,
-            )
-        )
+        boxes = box_overlay(rgb, *camera_boxes(seq, f), camera_dist_coeffs(seq.camera_of(f)))
+        rows.append(np.concatenate([labelled, depth_panel, instance_image(seq.instance(f)), boxes], axis=1))
+    return rows
+
+
+def twin_rows(seq: Sequence) -> list[np.ndarray]:
+    """One row per kept render (``capture_render/<frame>.png``): render, photo, their difference x 4 and the photo
+    with its boxes, padded to the width of a :func:`sheet_rows` row."""
+    records = read_capture_records(seq.root)
+    rows = []
+    for path in sorted((seq.root / RENDER_TWINS).glob("*.png")):
+        f = path.name
+        photo = seq.rgb(f)
+        h, w = photo.shape[:2]
+        render = read_rgb(path)
+        if render.shape[:2] != (h, w):  # a resized photo: the render shown at the photo's size
+            render = cv2.resize(render, (w, h), interpolation=cv2.INTER_AREA)
+        diff = np.clip(4 * np.abs(photo.astype(np.int16) - render.astype(np.int16)), 0, 255).astype(np.uint8)
+        render, labelled = np.ascontiguousarray(render.copy()), np.ascontiguousarray(photo.copy())
+        _text(render, f"{path.stem} render", (2, 10), (255, 255, 255))
+        _text(labelled, f"{path.stem} {records.get(f, {}).get('profile', 'photo')}", (2, 10), (255, 255, 255))
+        _text(diff, "|photo - render| x 4", (2, 10), (255, 255, 255))
+        boxes = box_overlay(photo, *camera_boxes(seq, f), camera_dist_coeffs(seq.camera_of(f)))
+        pad = np.full((h, BAR_W, 3), 255, dtype=np.uint8)
+        rows.append(np.concatenate([render, labelled, diff, boxes, pad], axis=1))
     return rows
 
 
@@ -220,7 +273,7 @@ def contact_sheet(dataset_or_sequence_dir: Path, out: Path, sequence: str | None
     seq = load_sequence(find_sequence(Path(dataset_or_sequence_dir), sequence))
     if not seq.frames:
         raise DatasetError(f"{seq.root}: the sequence has no frames")
-    sheet = np.concatenate(sheet_rows(seq, sample_frames(seq.frames, frames)), axis=0)
+    sheet = np.concatenate(sheet_rows(seq, sample_frames(seq.frames, frames)) + twin_rows(seq), axis=0)
     out = Path(out)
     atomic_write_bytes(out, encode_png(sheet))
     return out

@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import string
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import httpx
 import numpy as np
 
-from synthleak.core.dataset import encode_png
+from synthleak.core.dataset import camera_dist_coeffs, encode_png
 from synthleak.core.types import Camera
 from synthleak.geometry.poses import make_pose, matrix_from_quat_wxyz
 from synthleak.localize.localizer import LocalizationResult
+from synthleak.localize.servers import base_tier
 
 
 class LocalizationServiceError(RuntimeError):
@@ -21,11 +25,21 @@ class LocalizationServiceError(RuntimeError):
         self.status_code = status_code
 
 
-class HttpLocalizer:
-    """``localize(image, camera=None)`` against a running service; only success and pose come back."""
+@dataclass
+class HttpLocalizationResult(LocalizationResult):
+    """An HTTP answer; ``labelled``: it held the server-side labels (``?labels=1``), so ``num_inliers``,
+    ``inlier_instance_counts`` and ``retrieved`` are the server's, not unknown."""
 
-    def __init__(self, url: str, timeout: float = 60.0) -> None:
+    labelled: bool = False
+
+
+class HttpLocalizer:
+    """``localize(image, camera=None)`` against a running service; success and pose come back, and with
+    ``labels`` the server-side labels (docs/service-protocol.md) when the service gives them."""
+
+    def __init__(self, url: str, timeout: float = 60.0, labels: bool = False) -> None:
         self.url = url.rstrip("/")
+        self.labels = labels
         self._client = httpx.Client(timeout=timeout)
 
     def close(self) -> None:
@@ -43,10 +57,13 @@ class HttpLocalizer:
     def localize(self, image: np.ndarray | bytes, camera: Camera | None = None) -> LocalizationResult:
         t0 = time.perf_counter()
         body = bytes(image) if isinstance(image, bytes | bytearray) else encode_png(np.asarray(image, dtype=np.uint8))
-        params = {}
+        params: dict = {"labels": 1} if self.labels else {}
         if camera is not None:
-            params = {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,
+            params |= {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,
                       "width": camera.width, "height": camera.height}
+            dist = camera_dist_coeffs(camera)  # a distorting lens: its OpenCV k1 k2 p1 p2 k3 (optional)
+            if dist is not None:
+                params |= dict(zip(("k1", "k2", "p1", "p2", "k3"), dist.tolist(), strict=True))
         response = self._client.post(f"{self.url}/localize", content=body, params=params,
                                      headers={"Content-Type": "application/octet-stream"})
         if response.status_code != 200:
@@ -57,8 +74,72 @@ class HttpLocalizer:
             raise LocalizationServiceError(response.status_code, str(message))
         data = response.json()
         timings = {"total": time.perf_counter() - t0}
+        labels = {}
+        if self.labels and "num_inliers" in data:
+            labels = {"labelled": True, "num_inliers": int(data["num_inliers"]),
+                      "inlier_instance_counts": {int(k): int(v) for k, v in
+                                                 data.get("inlier_instance_counts", {}).items()},
+                      "retrieved": [str(name) for name in data.get("retrieved", [])]}
         if not data.get("success"):
-            return LocalizationResult(False, timings=timings)
+            return HttpLocalizationResult(False, timings=timings, **labels)
         pose = data["cam_from_world"]
         matrix = make_pose(matrix_from_quat_wxyz(pose["rotation"]), pose["translation"])
-        return LocalizationResult(True, matrix, timings=timings)
+        return HttpLocalizationResult(True, matrix, timings=timings, **labels)
+
+
+URL_FIELDS = ("server", "tier", "room", "room_index")
+"""The placeholders of a ``--server`` URL template (docs/service-protocol.md)."""
+
+
+def is_url_template(url: str) -> bool:
+    """True when ``url`` holds a ``{...}`` placeholder."""
+    return any(field is not None for _, field, _, _ in string.Formatter().parse(url))
+
+
+def server_urls(url: str, pairs: Sequence[tuple[str, str]], rooms: Sequence[str],
+                maps: Sequence[dict] | None = None) -> dict[tuple[str, str], str]:
+    """The URL of each (server, room) pair of a study (docs/service-protocol.md): ``url`` as a template
+    (``{server}``, ``{tier}``, ``{room}``, ``{room_index}``, format specs allowed, e.g. ``{room_index:02d}``),
+    or, without placeholders, the entry of ``maps`` (a service's ``GET /maps``, paths relative to ``url``) or,
+    without ``maps``, ``url`` itself for every pair. ``rooms``: the study's rooms in index order. A ValueError
+    names a bad template, two pairs sent to one URL by a template, or a pair ``maps`` does not list."""
+    base = url.rstrip("/")
+    if not is_url_template(url):
+        if maps is None:
+            return {pair: base for pair in pairs}
+        listed = {(str(m["server"]), str(m["room"])): str(m.get("url") or base + "/" + str(m["path"]).strip("/"))
+                  for m in maps}
+        missing = [f"{s}/{r}" for s, r in pairs if (s, r) not in listed]
+        if missing:
+            raise ValueError(f"{base}/maps: the service has no map for {', '.join(missing)} "
+                             f"(it lists {', '.join(f'{s}/{r}' for s, r in listed) or 'none'})")
+        return {pair: listed[pair] for pair in pairs}
+    out = {}
+    for server, room in pairs:
+        fields = {"server": server, "tier": base_tier(server), "room": room, "room_index": list(rooms).index(room)}
+        try:
+            out[(server, room)] = url.format(**fields).rstrip("/")
+        except (KeyError, IndexError, ValueError) as exc:
+            raise ValueError(f"--server {url!r}: bad URL template ({exc!r}); placeholders: "
+                             f"{', '.join('{' + f + '}' for f in URL_FIELDS)}") from None
+    seen: dict[str, tuple[str, str]] = {}
+    for pair, target in out.items():
+        if target in seen:
+            raise ValueError(f"--server {url!r} sends {seen[target][0]}/{seen[target][1]} and {pair[0]}/{pair[1]} "
+                             f"to the same URL {target}: add {{server}} or {{room}} to the template")
+        seen[target] = pair
+    return out
+
+
+def list_maps(url: str, timeout: float = 10.0) -> list[dict] | None:
+    """A service's ``GET <url>/maps`` (the maps it serves), or None when it answers 404 (a single-map service)."""
+    response = httpx.get(f"{url.rstrip('/')}/maps", timeout=timeout)
+    if response.status_code == 404:
+        return None
+    if response.status_code != 200:
+        raise LocalizationServiceError(response.status_code, f"GET {url.rstrip('/')}/maps: {response.text}")
+    maps = response.json()
+    if not isinstance(maps, list) or not all(isinstance(m, dict) and {"server", "room"} <= m.keys()
+                                             and ("path" in m or "url" in m) for m in maps):
+        raise ValueError(f"GET {url.rstrip('/')}/maps: expected a JSON list of {{server, room, path or url}}")
+    return maps

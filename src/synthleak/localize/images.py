@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 from PIL import Image
 
+from synthleak.core.dataset import scaled_camera
 from synthleak.core.types import Camera
 from synthleak.errors import SynthleakError
 
@@ -140,5 +141,4 @@ def fit_to_pixels(rgb: np.ndarray, camera: Camera, max_pixels: int) -> tuple[np.
     factor = math.sqrt(max_pixels / (width * height))
     new_w, new_h = max(1, int(width * factor)), max(1, int(height * factor))
     small = cv2.resize(rgb, (new_w, new_h), interpolation=cv2.INTER_AREA)
-    sx, sy = new_w / width, new_h / height
-    return small, Camera(new_w, new_h, camera.fx * sx, camera.fy * sy, camera.cx * sx, camera.cy * sy)
+    return small, scaled_camera(camera, new_w, new_h)  # a lens distortion (normalised coordinates) is kept

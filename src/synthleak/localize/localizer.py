@@ -12,15 +12,34 @@ import numpy as np
 import pycolmap
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.dataset import camera_dist_coeffs, colmap_camera_model
 from synthleak.core.types import Camera
 from synthleak.localize.defense import DefenseDecision, DefensePolicy
 from synthleak.localize.features import Features
 from synthleak.localize.images import MAX_QUERY_PIXELS, InvalidImageError, decode_image, fit_to_pixels
+from synthleak.localize.representations import map_representation, read_represented_map
 from synthleak.localize.retrieval import RETRIEVAL_METHODS, BowIndex
-from synthleak.localize.store import MapData, MapError, read_map
+from synthleak.localize.store import MapData, MapError
 from synthleak.localize.tiers import DEFAULT_PROFILE, Tier, profile_tier
+from synthleak.schema import as_list
 
 RANSAC_SEED = 0
+
+
+def undistorted_keypoints(keypoints: np.ndarray, camera: Camera) -> tuple[np.ndarray, Camera]:
+    """``keypoints`` of a distorted ``camera`` as the pinhole camera of the same intrinsics sees them (and that
+    camera); a pinhole camera's unchanged. A keypoint beyond the lens model's range goes far outside the image
+    (it matches no line)."""
+    dist = camera_dist_coeffs(camera)
+    if dist is None:
+        return keypoints, camera
+    from synthleak.render.distortion import undistort_normalized
+
+    x, y = undistort_normalized((keypoints[:, 0] - camera.cx) / camera.fx, (keypoints[:, 1] - camera.cy) / camera.fy,
+                                dist, strict=False)
+    out = np.stack([x * camera.fx + camera.cx, y * camera.fy + camera.cy], axis=1)
+    out[~np.isfinite(out).all(axis=1)] = -1e9
+    return out, Camera(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
 
 
 @dataclass
@@ -85,13 +104,15 @@ class Localizer:
         defines it (:func:`~synthleak.localize.tiers.profile_tier`). Raises :class:`MapError` when the map was
         built under another server profile (its matches were filtered with other thresholds)."""
         map_dir = Path(map_dir)
-        data = read_map(map_dir)
         config = config or LocalizeConfig()
+        data = read_represented_map(map_dir, config.representation)  # refuses another representation's map
         built = data.meta.get("settings", {}).get("profile", DEFAULT_PROFILE)
-        if built != config.profile:
+        if built not in as_list(config.profile):
             raise MapError(f"{map_dir / 'map.json'}: built with [localize] profile = {built!r}, but this "
                            f"server's config has profile = {config.profile!r}: serve it with a config of "
                            f"profile {built!r}, or rebuild the map")
+        # a study's lists of profiles and representations: the ones of this map
+        config = replace(config, profile=built, representation=map_representation(data.meta))
         loc = cls(data, profile_tier(data.meta["tier"], config.profile), config, defense, weights_dir,
                   decision_log)
         if loc.config.retrieval == "bow" or loc.tier.learned_matcher:  # a learned matcher: top_k images only
@@ -167,14 +188,28 @@ class Localizer:
         """RANSAC PnP on 2D-3D matches (``min_inliers``, ``max_error_px``), inlier instance counts, defense."""
         if len(corr) < max(self.min_inliers, 4):
             return LocalizationResult(False, num_matches=len(corr))
-        cam = pycolmap.Camera(model="PINHOLE", width=camera.width, height=camera.height,
-                              params=[camera.fx, camera.fy, camera.cx, camera.cy])
+        model, params = colmap_camera_model(camera)  # PINHOLE, or OPENCV with the query's lens distortion
+        cam = pycolmap.Camera(model=model, width=camera.width, height=camera.height, params=params)
         options = pycolmap.AbsolutePoseEstimationOptions()
         options.ransac.max_error = float(self.max_error_px)
         options.ransac.random_seed = RANSAC_SEED
-        est = pycolmap.estimate_and_refine_absolute_pose(
-            query.keypoints[corr[:, 0]], self.data.xyz[corr[:, 1]], cam, options
-        )
+        lines = getattr(self.data, "lines", None)
+        if lines is not None:  # a line-cloud map (Speciale et al. 2019): the same result, from 2D-3D-line matches
+            from synthleak.localize.line_cloud import (
+                LineRansacOptions,
+                equivalent_line_threshold,
+                estimate_pose_from_lines,
+            )
+
+            threshold = equivalent_line_threshold(float(self.max_error_px), camera)  # as many chance inliers
+            keypoints, pinhole = undistorted_keypoints(query.keypoints[corr[:, 0]], camera)
+            est = estimate_pose_from_lines(
+                keypoints, lines.directions[corr[:, 1]], lines.anchors[corr[:, 1]], pinhole,
+                LineRansacOptions(max_error_px=threshold), seed=RANSAC_SEED)
+        else:
+            est = pycolmap.estimate_and_refine_absolute_pose(
+                query.keypoints[corr[:, 0]], self.data.xyz[corr[:, 1]], cam, options
+            )
         if est is None:
             return LocalizationResult(False, num_matches=len(corr))
         inliers = corr[np.asarray(est["inlier_mask"], dtype=bool)]

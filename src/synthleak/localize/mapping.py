@@ -19,9 +19,10 @@ import pycolmap
 
 from synthleak.atomic_io import atomic_write_text
 from synthleak.config import LocalizeConfig
-from synthleak.core.dataset import DatasetError, Sequence, load_sequence
+from synthleak.core.dataset import DatasetError, Sequence, camera_dist_coeffs, colmap_camera_model, load_sequence
 from synthleak.localize.features import Features
 from synthleak.localize.pairs import pairs_from_poses
+from synthleak.localize.representations import DEFAULT_REPRESENTATION
 from synthleak.localize.retrieval import BowIndex, BowParams
 from synthleak.localize.store import FORMAT_VERSION, camera_to_json
 from synthleak.localize.tiers import DEFAULT_PROFILE, profile_tier
@@ -74,6 +75,8 @@ def _map_settings(tier: str, config: LocalizeConfig, weights: dict) -> dict:
     if weights or config.profile != DEFAULT_PROFILE:
         definition = asdict(profile_tier(tier, config.profile))
         settings["tier_definition"] = json.loads(json.dumps(definition))  # as map.json reads back
+    if config.representation != DEFAULT_REPRESENTATION:  # point maps keep the settings they had before
+        settings["representation"] = config.representation
     return settings
 
 
@@ -93,6 +96,9 @@ def build_map(
     ``map.json``'s settings (``profile``, ``tier_definition``), so a map is rebuilt when it changes.
     """
     config = config or LocalizeConfig()
+    for key in ("profile", "representation"):
+        if isinstance(getattr(config, key), list):
+            raise ValueError(f"build_map: one {key} per map, got [localize] {key} = {getattr(config, key)!r}")
     sequence_dir, out_dir = Path(sequence_dir), Path(out_dir)
     tier_spec = profile_tier(tier, config.profile)
     seq = load_sequence(sequence_dir)
@@ -117,13 +123,14 @@ def build_map(
     features: list[Features] = [extractor(seq.rgb(n)) for n in progress_bar(names, "features", progress)]
 
     k = seq.camera.K
+    ideal = ideal_keypoints(seq, names, features)  # as the pinhole seq.camera sees them: lens undone, per frame
     matches: dict[tuple[int, int], np.ndarray] = {}
     pairs = pairs_from_poses(poses, config.pairs_per_image)
     for i, j in progress_bar(pairs, "matching", progress):
         m = matcher(features[i], features[j])
         if len(m):
             f = fundamental_from_poses(k, poses[i], poses[j])
-            err = epipolar_distance(f, features[i].keypoints[m[:, 0]], features[j].keypoints[m[:, 1]])
+            err = epipolar_distance(f, ideal[i][m[:, 0]], ideal[j][m[:, 1]])
             m = m[err < EPIPOLAR_MAX_PX]
         if len(m):
             matches[(i, j)] = m
@@ -133,7 +140,7 @@ def build_map(
     centres = np.stack([np.linalg.inv(p)[:3, 3] for p in poses])
     keypoints = [f.keypoints for f in features]
     points = [p for t in progress_bar(tracks, "triangulation", progress)
-              if (p := triangulate_track(t, keypoints, cams_from_world, k, centres, TRIANGULATION_MAX_ERROR_PX,
+              if (p := triangulate_track(t, ideal, cams_from_world, k, centres, TRIANGULATION_MAX_ERROR_PX,
                                          TRIANGULATION_MIN_ANGLE_DEG)) is not None]
 
     masks = [seq.instance(n) for n in names]
@@ -144,19 +151,27 @@ def build_map(
             point_index[img][kp] = pid
 
     if out_dir.exists():
-        for name in ("sfm", "map.json", IMAGE_INSTANCES_FILE):
+        for name in ("sfm", "map.json", IMAGE_INSTANCES_FILE, "points.npz", "points_instance.json", "lines.npz"):
             target = out_dir / name
             shutil.rmtree(target) if target.is_dir() else target.unlink(missing_ok=True)
     out_dir.mkdir(parents=True, exist_ok=True)
-    colmap_ids = _write_colmap(out_dir / "sfm", seq, names, poses, features, points)
+    lines = config.representation == "line-cloud"  # no points, and no GT-posed COLMAP model to re-triangulate
+    colmap_ids = list(range(len(points))) if lines else _write_colmap(out_dir / "sfm", seq, names, poses, features,
+                                                                      points)
     arrays = {"names": np.array(names), "binary": np.array(features[0].binary if features else False)}
     for i, f in enumerate(features):
         arrays |= {f"kp_{i}": f.keypoints, f"desc_{i}": f.descriptors, f"p3d_{i}": point_index[i]}
     np.savez(out_dir / "features.npz", **arrays)
     xyz = np.array([p.xyz for p in points]).reshape(-1, 3)
-    np.savez(out_dir / "points.npz", xyz=xyz, instance=instance, colmap_id=np.array(colmap_ids, np.int64),
-             error=np.array([p.error_px for p in points]),
-             track_length=np.array([len(p.track) for p in points]))
+    if lines:  # Speciale et al. CVPR 2019: a random line through each point, the point never written
+        from synthleak.localize.line_cloud import lift_seed, lift_to_lines, write_lines
+
+        write_lines(out_dir / "lines.npz", *lift_to_lines(xyz, lift_seed(tier, digest)), instance,
+                    np.array([len(p.track) for p in points]))
+    else:
+        np.savez(out_dir / "points.npz", xyz=xyz, instance=instance, colmap_id=np.array(colmap_ids, np.int64),
+                 error=np.array([p.error_px for p in points]),
+                 track_length=np.array([len(p.track) for p in points]))
     (out_dir / "points_instance.json").write_text(
         json.dumps({str(c): int(i) for c, i in zip(colmap_ids, instance, strict=True)})
     )
@@ -182,6 +197,27 @@ def build_map(
     return out_dir
 
 
+def ideal_keypoints(seq: Sequence, names: list[str], features: list[Features]) -> list[np.ndarray]:
+    """Each map frame's keypoints as the pinhole ``seq.camera`` would have seen them, for the epipolar filter and
+    the triangulation (one K): a frame with its own camera (lens distortion, resize) goes through that camera's
+    rays (:func:`synthleak.render.distortion.normalized_rays`, Newton undistortion; -1e9 where the lens has no
+    ray). Frames of the pinhole ``seq.camera`` itself (all of an all-pinhole sequence) are returned as detected,
+    bit for bit. The map stores the keypoints as detected, with each frame's own camera in ``sfm/``."""
+    from synthleak.render.distortion import normalized_rays
+
+    ref, out = seq.camera, []
+    for name, f in zip(names, features, strict=True):
+        cam = seq.camera_of(name)
+        if cam == ref and camera_dist_coeffs(cam) is None:
+            out.append(f.keypoints)
+            continue
+        x, y = normalized_rays(cam, f.keypoints[:, 0], f.keypoints[:, 1])
+        px = np.stack([x * ref.fx + ref.cx, y * ref.fy + ref.cy], axis=1).reshape(-1, 2)
+        px[~np.isfinite(px).all(axis=1)] = -1e9
+        out.append(px)
+    return out
+
+
 def bow_features(features: list[Features], point_index: list[np.ndarray], params: BowParams) -> list[Features]:
     """What a map's bag of words indexes: each image's keypoints with a 3D point (``points_only``, unless no
     image has any), else all of them."""
@@ -199,14 +235,18 @@ def _vote(obs: list[tuple[int, int]], keypoints: list[np.ndarray], masks: list[n
 
 
 def _write_colmap(path: Path, seq: Sequence, names, poses, features, points) -> list[int]:
-    cam = seq.camera
     rec = pycolmap.Reconstruction()
-    camera = pycolmap.Camera(model="PINHOLE", width=cam.width, height=cam.height,
-                             params=[cam.fx, cam.fy, cam.cx, cam.cy])
-    camera.camera_id = 1
-    rec.add_camera_with_trivial_rig(camera)
+    camera_ids = {seq.camera: 1}  # camera 1: the sequence's; then one per other distinct frame camera (its lens)
+    for name in names:
+        camera_ids.setdefault(seq.camera_of(name), len(camera_ids) + 1)
+    for cam, camera_id in camera_ids.items():
+        model, params = colmap_camera_model(cam)  # PINHOLE fx fy cx cy, or OPENCV / FULL_OPENCV
+        camera = pycolmap.Camera(model=model, width=cam.width, height=cam.height, params=params)
+        camera.camera_id = camera_id
+        rec.add_camera_with_trivial_rig(camera)
     for i, (name, pose, f) in enumerate(zip(names, poses, features, strict=True)):
-        image = pycolmap.Image(name=name, keypoints=f.keypoints, camera_id=1, image_id=i + 1)
+        image = pycolmap.Image(name=name, keypoints=f.keypoints, camera_id=camera_ids[seq.camera_of(name)],
+                               image_id=i + 1)
         rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pose[:3]))
     ids = []
     for p in points:

@@ -2,14 +2,18 @@
 
 ``POST /localize``: the request body is the encoded image itself (PNG/JPEG/..., 8 or 16 bits per sample, any
 Content-Type, e.g. ``image/png``), optional intrinsics as query parameters ``fx, fy, cx, cy`` (all four or
-none) and ``width, height`` (must equal the image size if given). Without intrinsics the map's camera is used
-and the image must have the map's size. The response is exactly
+none) and ``width, height`` (must equal the image size if given), and with them, optionally, the lens
+distortion ``k1, k2, p1, p2, k3`` (OpenCV / COLMAP ``OPENCV``; absent ones are 0, none: pinhole). Without
+intrinsics the map's camera is used and the image must have the map's size. The response is exactly
 ``{"success": true, "cam_from_world": {"rotation": [qw, qx, qy, qz], "translation": [x, y, z]}}`` or
 ``{"success": false}`` (also for an image without features, such as a blank one). Bad input gets a 4xx with
 ``{"detail": "<message>"}``: 400 (empty, undecodable, too small, size mismatch), 408 (the body did not arrive
 in time: nothing for ``body_idle_timeout`` seconds, or not all of it within ``body_timeout``), 413 (body over
 ``max_upload_bytes``, rejected from Content-Length or while streaming; or an image header declaring more than
 ``MAX_QUERY_PIXELS``, refused before decoding), 422 (bad intrinsics). ``GET /health`` -> ``{"status": "ok"}``.
+With ``?labels=1`` the answer also holds the server-side labels a study's evaluation reads (``num_inliers``,
+``inlier_instance_counts``, ``retrieved``). :func:`create_maps_app` serves several maps, each under
+``/<server>/<room>/``, listed at ``GET /maps``. The protocol: docs/service-protocol.md.
 
 Work per query is bounded (see :mod:`synthleak.localize.images`): images larger than the map's are
 downscaled to its pixel count with scaled intrinsics. :func:`serve` runs queries in a
@@ -26,6 +30,7 @@ import math
 import os
 import threading
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Protocol
 
@@ -35,6 +40,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 
 from synthleak.config import LocalizeConfig
+from synthleak.core.dataset import OpenCVCamera
 from synthleak.core.types import Camera
 from synthleak.geometry.poses import quat_wxyz_from_matrix
 from synthleak.localize.defense import DefensePolicy
@@ -101,6 +107,8 @@ def _camera_from_query(params, width: int, height: int) -> Camera | None:
     names = ("fx", "fy", "cx", "cy")
     given = {k: params[k] for k in (*names, "width", "height") if k in params}
     if not any(k in given for k in names):
+        if any(k in params for k in DISTORTION_PARAMS):
+            raise HTTPException(422, "distortion: give the intrinsics fx, fy, cx, cy with it")
         return None
     if not all(k in given for k in names):
         raise HTTPException(422, "intrinsics: give all of fx, fy, cx, cy or none")
@@ -122,7 +130,29 @@ def _camera_from_query(params, width: int, height: int) -> Camera | None:
     if not (0 < values["cx"] < width and 0 < values["cy"] < height):
         raise HTTPException(422, f"intrinsics: principal point ({values['cx']}, {values['cy']}) lies outside "
                                  f"the {width}x{height} image")
-    return Camera(width, height, values["fx"], values["fy"], values["cx"], values["cy"])
+    camera = Camera(width, height, values["fx"], values["fy"], values["cx"], values["cy"])
+    return _with_distortion(params, camera)
+
+
+DISTORTION_PARAMS = ("k1", "k2", "p1", "p2", "k3")
+"""Optional query parameters: the query camera's OpenCV lens distortion (COLMAP ``OPENCV``; absent: 0)."""
+
+
+def _with_distortion(params, camera: Camera) -> Camera:
+    """``camera`` with the lens distortion of the query string, if any (422 on bad values)."""
+    given = {k: params[k] for k in DISTORTION_PARAMS if k in params}
+    if not given:
+        return camera
+    values = {}
+    for key, text in given.items():
+        try:
+            values[key] = float(text)
+        except ValueError:
+            raise HTTPException(422, f"distortion: {key}={text!r} is not a number") from None
+        if not (math.isfinite(values[key]) and abs(values[key]) <= 1.0):
+            raise HTTPException(422, f"distortion: {key} must be finite and in [-1, 1]")
+    return OpenCVCamera(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy,
+                        *(values.get(k, 0.0) for k in DISTORTION_PARAMS))
 
 
 class _Closing(HTTPException):
@@ -184,38 +214,109 @@ def create_app(
 
     @app.post("/localize", response_model=None)
     async def localize(request: Request) -> dict | Response:
-        try:
-            data = await _read_body(request, max_upload_bytes, body_idle_timeout, body_timeout)
-        except ClientDisconnect:
-            client = f"{request.client.host}:{request.client.port}" if request.client else "client"
-            logger.info("%s disconnected during its upload to /localize", client)
-            return Response(status_code=400)  # nobody reads it
-        width, height = _check_size(data, backend.max_query_pixels)
-        camera = _camera_from_query(request.query_params, width, height)
-        if camera is None and (width, height) != (backend.camera.width, backend.camera.height):
-            raise HTTPException(400, f"image is {width}x{height} but the map camera is "
-                                     f"{backend.camera.width}x{backend.camera.height}: pass intrinsics")
-        try:
-            result = await backend.localize(data, camera)
-        except ImageTooLargeError as exc:
-            raise HTTPException(413, str(exc)) from exc
-        except InvalidImageError as exc:
-            raise HTTPException(400, str(exc)) from exc
-        except WorkerCrashedError as exc:
-            raise HTTPException(503, str(exc)) from exc
-        return response_from_result(result)
+        return await _answer(request, backend, max_upload_bytes, body_idle_timeout, body_timeout)
 
     return app
 
 
-def response_from_result(result: LocalizationResult) -> dict:
-    """The service's whole answer: the pose (quaternion [qw, qx, qy, qz] + translation) or failure."""
+async def _answer(request: Request, backend: Backend, max_upload_bytes: int, body_idle_timeout: float,
+                  body_timeout: float) -> dict | Response:
+    """One ``POST .../localize``: read, check and localize the uploaded image; the JSON answer."""
+    try:
+        data = await _read_body(request, max_upload_bytes, body_idle_timeout, body_timeout)
+    except ClientDisconnect:
+        client = f"{request.client.host}:{request.client.port}" if request.client else "client"
+        logger.info("%s disconnected during its upload to %s", client, request.url.path)
+        return Response(status_code=400)  # nobody reads it
+    labels = _labels_from_query(request.query_params)
+    width, height = _check_size(data, backend.max_query_pixels)
+    camera = _camera_from_query(request.query_params, width, height)
+    if camera is None and (width, height) != (backend.camera.width, backend.camera.height):
+        raise HTTPException(400, f"image is {width}x{height} but the map camera is "
+                                 f"{backend.camera.width}x{backend.camera.height}: pass intrinsics")
+    try:
+        result = await backend.localize(data, camera)
+    except ImageTooLargeError as exc:
+        raise HTTPException(413, str(exc)) from exc
+    except InvalidImageError as exc:
+        raise HTTPException(400, str(exc)) from exc
+    except WorkerCrashedError as exc:
+        raise HTTPException(503, str(exc)) from exc
+    return response_from_result(result, labels)
+
+
+def _labels_from_query(params) -> bool:
+    """The optional ``labels`` query parameter (``1``/``true`` or ``0``/``false``; 422 otherwise)."""
+    text = params.get("labels", "0").lower()
+    if text not in ("0", "1", "true", "false"):
+        raise HTTPException(422, f"labels={params.get('labels')!r}: give 1/true or 0/false")
+    return text in ("1", "true")
+
+
+def response_from_result(result: LocalizationResult, labels: bool = False) -> dict:
+    """The service's whole answer: the pose (quaternion [qw, qx, qy, qz] + translation) or failure; with
+    ``labels`` (a study's evaluation asks ``?labels=1``) also the server-side labels the in-process query log
+    holds: ``num_inliers``, ``inlier_instance_counts`` (instance id as a string -> inliers) and ``retrieved``
+    (the map images matched against), docs/service-protocol.md."""
+    extra = {} if not labels else {
+        "num_inliers": int(result.num_inliers),
+        "inlier_instance_counts": {str(k): int(v) for k, v in sorted(result.inlier_instance_counts.items())},
+        "retrieved": [str(name) for name in result.retrieved]}
     if not result.success or result.cam_from_world is None:
-        return {"success": False}
+        return {"success": False, **extra}
     pose = result.cam_from_world
     return {"success": True, "cam_from_world": {
         "rotation": [float(x) for x in quat_wxyz_from_matrix(pose[:3, :3])],
-        "translation": [float(x) for x in pose[:3, 3]]}}
+        "translation": [float(x) for x in pose[:3, 3]]}, **extra}
+
+
+def find_maps(root: Path) -> dict[tuple[str, str], Path]:
+    """The maps under a study's ``maps/`` folder, ``root/<server>/<room>/map.json``, by (server, room), sorted;
+    a ValueError naming ``root`` when it holds none."""
+    root = Path(root)
+    maps = {(path.parent.parent.name, path.parent.name): path.parent for path in sorted(root.glob("*/*/map.json"))}
+    if not maps:
+        raise ValueError(f"{root}: neither a map (no map.json) nor a folder of maps (<server>/<room>/map.json)")
+    return maps
+
+
+def create_maps_app(
+    backends: Mapping[tuple[str, str], Localizer | Backend],
+    max_upload_bytes: int = MAX_UPLOAD_BYTES,
+    body_idle_timeout: float = BODY_IDLE_TIMEOUT_S,
+    body_timeout: float = BODY_TIMEOUT_S,
+) -> FastAPI:
+    """The app serving several maps by (server, room): ``POST /<server>/<room>/localize`` (as ``/localize`` of
+    :func:`create_app`), ``GET /<server>/<room>/health``, ``GET /maps`` (the JSON list of ``{"server", "room",
+    "path"}``) and ``GET /health``; an unknown (server, room) is answered 404."""
+    served = {name: InProcessBackend(b) if isinstance(b, Localizer) else b for name, b in backends.items()}
+    app = FastAPI(title="synthleak localization", docs_url=None, redoc_url=None, openapi_url=None)
+
+    def backend_of(server: str, room: str) -> Backend:
+        if (server, room) not in served:
+            known = ", ".join(f"{s}/{r}" for s, r in served)
+            raise HTTPException(404, f"no map {server}/{room} on this service (maps: {known})")
+        return served[(server, room)]
+
+    @app.get("/health")
+    async def health() -> dict:
+        return {"status": "ok"}
+
+    @app.get("/maps")
+    async def maps() -> list[dict]:
+        return [{"server": server, "room": room, "path": f"/{server}/{room}"} for server, room in served]
+
+    @app.get("/{server}/{room}/health")
+    async def map_health(server: str, room: str) -> dict:
+        backend_of(server, room)
+        return {"status": "ok"}
+
+    @app.post("/{server}/{room}/localize", response_model=None)
+    async def localize(server: str, room: str, request: Request) -> dict | Response:
+        backend = backend_of(server, room)
+        return await _answer(request, backend, max_upload_bytes, body_idle_timeout, body_timeout)
+
+    return app
 
 
 def default_workers() -> int:
@@ -239,7 +340,10 @@ def serve(
     max_query_pixels: int = MAX_QUERY_PIXELS,
 ) -> None:
     """Start ``workers`` localizer processes (:func:`default_workers` if None) on the map and serve it with
-    uvicorn until interrupted."""
+    uvicorn until interrupted. ``map_dir`` may also be a folder of maps (a study's ``maps/``,
+    ``<server>/<room>/map.json``): each is served under ``/<server>/<room>/`` by its own pool of ``workers``
+    processes (1 if None), listed at ``GET /maps`` (:func:`create_maps_app`)."""
+    import contextlib
     import copy
 
     import uvicorn
@@ -247,7 +351,17 @@ def serve(
 
     log_config = copy.deepcopy(LOGGING_CONFIG)
     log_config["loggers"].update(LOG_CONFIG_LOGGERS)
-    with LocalizerPool(Path(map_dir), workers or default_workers(), config, defense, weights_dir, decision_log,
-                       max_query_pixels) as pool:
-        uvicorn.run(create_app(pool, max_upload_bytes), host=host, port=port, log_level="info",
-                    log_config=log_config, limit_concurrency=MAX_CONNECTIONS)
+    map_dir = Path(map_dir)
+    with contextlib.ExitStack() as stack:
+        if (map_dir / "map.json").is_file():
+            pool = stack.enter_context(LocalizerPool(map_dir, workers or default_workers(), config, defense,
+                                                     weights_dir, decision_log, max_query_pixels))
+            app = create_app(pool, max_upload_bytes)
+        else:
+            if decision_log is not None:
+                raise ValueError(f"{map_dir}: --decision-log needs a single map, not a folder of maps")
+            app = create_maps_app({name: stack.enter_context(LocalizerPool(
+                path, workers or 1, config, defense, weights_dir, None, max_query_pixels))
+                for name, path in find_maps(map_dir).items()}, max_upload_bytes)
+        uvicorn.run(app, host=host, port=port, log_level="info", log_config=log_config,
+                    limit_concurrency=MAX_CONNECTIONS)

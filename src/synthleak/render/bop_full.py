@@ -29,11 +29,12 @@ import numpy as np
 import trimesh
 
 from synthleak.atomic_io import atomic_write_bytes, atomic_write_text
-from synthleak.core.dataset import DatasetError, encode_png, load_sequence, read_json
+from synthleak.core.dataset import DatasetError, camera_dist_coeffs, encode_png, load_sequence, read_json
 from synthleak.core.types import Camera, RenderScene
 from synthleak.geometry.poses import invert, make_pose, transform_points
 from synthleak.portable import snap
 from synthleak.render.dataset import atomic_write_json
+from synthleak.render.distortion import normalized_rays, project_camera_points
 
 ENLARGE = 3
 """Silhouettes for ``px_count_all`` / ``bbox_obj`` are counted in an image ENLARGE times as wide and high."""
@@ -65,12 +66,13 @@ class ObjectSilhouette:
         pose = np.asarray(cam_from_model, dtype=np.float64)
         rot = pose[:3, :3]
         origin = (-rot.T @ pose[:3, 3] - self._shift).astype(np.float32)
-        x = ((u + 0.5 - camera.cx) / camera.fx).astype(np.float32)
-        y = ((v + 0.5 - camera.cy) / camera.fy).astype(np.float32)
+        x64, y64 = normalized_rays(camera, u + 0.5, v + 0.5)  # a distorted camera's lens undone (NaN: no ray)
+        ray = np.isfinite(x64) & np.isfinite(y64)
+        x, y = np.where(ray, x64, 0.0).astype(np.float32), np.where(ray, y64, 0.0).astype(np.float32)
         axes = rot.astype(np.float32)  # rows: the camera's x, y, z axes in the model frame
         dirs = x[:, None] * axes[0] + y[:, None] * axes[1] + axes[2]
         origins = np.repeat(origin[None], len(dirs), axis=0)
-        return np.asarray(self._scene.run(origins, dirs, query="OCCLUDED")) >= 0
+        return (np.asarray(self._scene.run(origins, dirs, query="OCCLUDED")) >= 0) & ray
 
 
 def instance_model_meshes(scene: RenderScene) -> dict[int, tuple[np.ndarray, np.ndarray]]:
@@ -120,12 +122,17 @@ def _region(camera: Camera, cam_from_model: np.ndarray, vertices: np.ndarray, fa
         a, b = pts[edges[:, 0]], pts[edges[:, 1]]
         s = (NEAR - a[:, 2]) / (b[:, 2] - a[:, 2])
         used = np.concatenate([used, a + s[:, None] * (b - a)])
-    u = np.clip(camera.fx * used[:, 0] / used[:, 2] + camera.cx, -4.0 * w, 5.0 * w)
-    v = np.clip(camera.fy * used[:, 1] / used[:, 2] + camera.cy, -4.0 * h, 5.0 * h)
-    lo_u = max(lo_u, int(np.floor(u.min() - 0.5)) - 1)
-    hi_u = min(hi_u, int(np.ceil(u.max() - 0.5)) + 2)
-    lo_v = max(lo_v, int(np.floor(v.min() - 0.5)) - 1)
-    hi_v = min(hi_v, int(np.ceil(v.max() - 0.5)) + 2)
+    projected = project_camera_points(camera, used)
+    if projected is None:  # a distorted camera sees the mesh beyond its lens model's range: cast it all
+        return lo_u, hi_u, lo_v, hi_v, z_far
+    # a distorting lens bends the edges between the vertices: a margin of 2 % of the frame
+    pad = 0 if camera_dist_coeffs(camera) is None else int(np.ceil(0.02 * max(w, h)))
+    u = np.clip(projected[0], -4.0 * w, 5.0 * w)
+    v = np.clip(projected[1], -4.0 * h, 5.0 * h)
+    lo_u = max(lo_u, int(np.floor(u.min() - 0.5)) - 1 - pad)
+    hi_u = min(hi_u, int(np.ceil(u.max() - 0.5)) + 2 + pad)
+    lo_v = max(lo_v, int(np.floor(v.min() - 0.5)) - 1 - pad)
+    hi_v = min(hi_v, int(np.ceil(v.max() - 0.5)) + 2 + pad)
     return lo_u, hi_u, lo_v, hi_v, z_far
 
 
@@ -227,7 +234,6 @@ def write_bop_extras(seq_dir: Path, scene: RenderScene, depth_scale: float = 0.1
     rendered from (world frame, as :func:`synthleak.core.usd_read.read_render_scene` returns it)."""
     seq_dir = Path(seq_dir)
     seq = load_sequence(seq_dir)
-    camera = seq.camera
     bop = seq_dir / "bop"
     gt_path, cam_path = bop / "scene_gt.json", bop / "scene_camera.json"
     scene_gt = read_json(gt_path)
@@ -239,6 +245,7 @@ def write_bop_extras(seq_dir: Path, scene: RenderScene, depth_scale: float = 0.1
     too_deep = 0
     for key in sorted(scene_gt, key=int):
         im_id = int(key)
+        camera = seq.camera_of(im_id)  # the frame's own (distorted / resized) camera
         depth = seq.depth(im_id)
         instance = seq.instance(im_id)
         png = depth_png(depth, depth_scale, warn=False)

@@ -15,13 +15,16 @@ mitsuba and Blender compute this linear image before they encode it. pyrender do
 :func:`gamma22_to_linear` (``(v / 255) ** 2.2``). Highlights above 1.0 are already clipped there, and the
 shadows carry 8-bit banding that the noise model then treats as signal.
 
-Order (:func:`capture`): optics (defocus, *reserved: motion blur*, *reserved: lens distortion*,
+Order (:func:`capture`): optics (defocus, motion blur, lens distortion,
 vignetting) -> auto-exposure (meters the irradiance the sensor sees, chooses shutter and ISO) -> sensor
 (colour filter response, RGGB Bayer mosaic, Poisson-Gaussian noise, black level, ADC) -> ISP (demosaic,
 white balance with the camera's illuminant estimate, colour correction matrix, tone curve, sRGB encoding)
--> in-camera JPEG -> resize (as an uploader does) -> re-compression. Motion blur and lens distortion go
-where they are marked. They are left out here because they change the geometry (ground truth, sub-frame
-poses) and need the render pipeline.
+-> in-camera JPEG -> resize (as an uploader does) -> re-compression. Motion blur
+(:mod:`synthleak.render.motion_blur`) warps the frame along the camera's motion over the shutter time the
+auto-exposure chooses, from the GT depth; the ground truth is the mid-exposure pose. Lens distortion and
+resize change the geometry: the photo's camera is :func:`output_camera` (an ``OPENCV`` camera after distortion,
+scaled after resize; geometry in :mod:`synthleak.render.distortion`), and the pipeline ray casts the ground
+truth for it.
 
 With every effect off (``devices.IDEAL``) the output is exactly ``linear_to_srgb_uint8(linear_rgb)``,
 the pipeline's current encoding, byte for byte.
@@ -40,7 +43,9 @@ import cv2
 import numpy as np
 from PIL import Image
 
+from synthleak.core.types import Camera
 from synthleak.errors import ConfigError
+from synthleak.render.motion_blur import MotionBlur
 
 # --------------------------------------------------------------------------------------------- colour science
 
@@ -151,6 +156,37 @@ class Defocus:
                   max_blur_px=self.max_blur_px)  # fmt: skip
         if self.focus_distance_m is not None and self.focus_distance_m * 1000.0 <= self.focal_length_mm:
             _fail(self.SECTION, "focus_distance_m", "must be beyond the focal length", self.focus_distance_m)
+
+
+@dataclass(frozen=True)
+class Distortion:
+    """Lens distortion, OpenCV's radial-tangential (Brown-Conrady) model = COLMAP's ``OPENCV`` camera
+    (``FULL_OPENCV`` with k3): normalised camera coordinates (x, y) -> ``x (1 + k1 r^2 + k2 r^4 + k3 r^6) +
+    2 p1 x y + p2 (r^2 + 2 x^2)`` and y alike (Brown 1966, "Decentering distortion of lenses"). Plain
+    coefficients on normalised coordinates (independent of resolution). The render is resampled into the
+    distorted photo (:func:`synthleak.render.distortion.distorted_camera`); a radial map that folds inside the
+    frame is refused once the camera is known (:func:`output_camera`)."""
+
+    k1: float = 0.0
+    """r^2 radial coefficient (< 0: barrel, > 0: pincushion)."""
+    k2: float = 0.0
+    """r^4 radial coefficient."""
+    p1: float = 0.0
+    """Tangential (decentering) coefficient."""
+    p2: float = 0.0
+    """Tangential (decentering) coefficient."""
+    k3: float = 0.0
+    """r^6 radial coefficient (not 0: written as COLMAP ``FULL_OPENCV``)."""
+    SECTION: ClassVar[str] = "distortion"
+
+    def __post_init__(self) -> None:
+        for name, bound in (("k1", 1.0), ("k2", 1.0), ("p1", 0.05), ("p2", 0.05), ("k3", 1.0)):
+            _in_range(self.SECTION, name, getattr(self, name), -bound, bound)
+
+    @property
+    def coeffs(self) -> np.ndarray:
+        """OpenCV ``distCoeffs`` ``[k1, k2, p1, p2, k3]``."""
+        return np.array([self.k1, self.k2, self.p1, self.p2, self.k3], dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -365,8 +401,10 @@ class CaptureParams:
     base_iso: float = 100.0
     """ISO at unity analog gain: the ISO the sensor's noise is specified at."""
     defocus: Defocus | None = None
-    # reserved, later step: motion_blur (needs sub-frame poses from the pipeline)
-    # reserved, later step: lens_distortion (moves pixels: the pipeline must remap or distort the GT too)
+    motion_blur: MotionBlur | None = None
+    """Camera motion during the exposure (:mod:`synthleak.render.motion_blur`; GT is the mid-exposure pose)."""
+    distortion: Distortion | None = None
+    """Lens distortion: needs the render's camera (``capture(camera=...)``); changes the photo's camera."""
     vignetting: Vignetting | None = None
     exposure: Exposure | None = None
     sensor: Sensor | None = None
@@ -385,14 +423,20 @@ class CaptureParams:
     def __post_init__(self) -> None:
         _positive(self.SECTION, base_iso=self.base_iso)
         kinds = {
-            "defocus": Defocus, "vignetting": Vignetting, "exposure": Exposure, "sensor": Sensor,
-            "color_matrix": ColorMatrix, "white_balance": WhiteBalance, "tone_curve": ToneCurve, "jpeg": Jpeg,
-            "resize": Resize, "recompress": Jpeg,
+            "defocus": Defocus, "motion_blur": MotionBlur, "distortion": Distortion,
+            "vignetting": Vignetting, "exposure": Exposure,
+            "sensor": Sensor, "color_matrix": ColorMatrix, "white_balance": WhiteBalance, "tone_curve": ToneCurve,
+            "jpeg": Jpeg, "resize": Resize, "recompress": Jpeg,
         }  # fmt: skip
         for name, kind in kinds.items():
             value = getattr(self, name)
             if value is not None and not isinstance(value, kind):
                 _fail(self.SECTION, name, f"must be a {kind.__name__} or None", value)
+
+    @property
+    def is_geometric(self) -> bool:
+        """True when the photo's camera differs from the render's (distortion, or a resize)."""
+        return self.distortion is not None or self.resize is not None
 
     @property
     def is_ideal(self) -> bool:
@@ -401,8 +445,8 @@ class CaptureParams:
 
 
 EFFECT_FIELDS = (
-    "defocus", "vignetting", "exposure", "sensor", "color_matrix", "white_balance", "tone_curve", "jpeg",
-    "resize", "recompress",
+    "defocus", "motion_blur", "distortion", "vignetting", "exposure", "sensor", "color_matrix", "white_balance",
+    "tone_curve", "jpeg", "resize", "recompress",
 )  # fmt: skip
 """The effect fields of :class:`CaptureParams`, in the order they are applied."""
 
@@ -662,16 +706,53 @@ def jpeg_roundtrip(rgb: np.ndarray, params: Jpeg) -> tuple[np.ndarray, int]:
     return decode_jpeg(data), len(data)
 
 
+def resized_size(width: int, height: int, params: Resize) -> tuple[int, int]:
+    """(W', H') of :func:`resize_longest` for a ``width`` x ``height`` image."""
+    longest = max(height, width)
+    if longest == params.longest_px or (longest < params.longest_px and not params.upscale):
+        return width, height
+    scale = params.longest_px / longest
+    return max(1, round(width * scale)), max(1, round(height * scale))
+
+
 def resize_longest(rgb: np.ndarray, params: Resize) -> np.ndarray:
     """Pillow LANCZOS resize so that the longest side is ``params.longest_px`` (unchanged when smaller and
     ``upscale`` is off)."""
     h, w = rgb.shape[:2]
-    longest = max(h, w)
-    if longest == params.longest_px or (longest < params.longest_px and not params.upscale):
+    size = resized_size(w, h, params)
+    if size == (w, h):
         return rgb
-    scale = params.longest_px / longest
-    size = (max(1, round(w * scale)), max(1, round(h * scale)))
     return np.asarray(Image.fromarray(rgb, "RGB").resize(size, Image.Resampling.LANCZOS))
+
+
+def lens_camera(params: CaptureParams, width: int, height: int) -> Camera:
+    """The pinhole camera of the profile's own lens (``defocus``: ``f = focal_length_mm / sensor_width_mm * W``,
+    centred), for a :func:`capture` of a distorting profile without ``camera``; a ConfigError without a lens."""
+    if params.defocus is None:
+        raise ConfigError("capture parameter distortion: needs the render's camera (camera=None given and no "
+                          "defocus lens to derive it from)")
+    f = params.defocus.focal_length_mm / params.defocus.sensor_width_mm * width
+    return Camera(int(width), int(height), f, f, width / 2.0, height / 2.0)
+
+
+def output_camera(render_camera: Camera, params: CaptureParams) -> Camera:
+    """The camera of the photo :func:`capture` makes of a render by the pinhole ``render_camera``: an
+    ``OPENCV`` camera after ``distortion`` (:func:`synthleak.render.distortion.distorted_camera`), scaled to
+    the resized size after ``resize`` (:func:`synthleak.core.dataset.scaled_camera`); ``render_camera``
+    itself when neither is on. A distortion that folds inside the frame is a ConfigError naming the profile
+    and the field."""
+    from synthleak.core.dataset import scaled_camera
+    from synthleak.render.distortion import distorted_camera
+
+    camera = render_camera
+    if params.distortion is not None:
+        camera = distorted_camera(render_camera, params.distortion.coeffs,
+                                  f"capture profile {params.name}: {Distortion.SECTION}")
+    if params.resize is not None:
+        size = resized_size(camera.width, camera.height, params.resize)
+        if size != (camera.width, camera.height):
+            camera = scaled_camera(camera, *size)
+    return camera
 
 
 # ------------------------------------------------------------------------------------------------- capture
@@ -704,6 +785,7 @@ def capture(
     depth: np.ndarray | None = None,
     *,
     timings: dict[str, float] | None = None,
+    camera: Camera | None = None,
 ) -> Photo:
     """Photograph a render: ``linear_rgb`` float (H, W, 3) linear radiance (see the module docstring),
     ``depth`` z-depth (H, W) in m (needed by ``defocus`` only). Returns :class:`Photo` ``(rgb, record)``:
@@ -711,8 +793,12 @@ def capture(
     estimate and gains, focus distance, JPEG sizes, resize factors; ``record["effects"]`` lists the effects
     in order). Random draws, all from ``numpy.random.default_rng(seed)``: the sensor's Poisson field, then
     its Gaussian field; nothing else is random (per-photo parameters come from ``devices.draw_device``).
-    ``timings``, when given, receives seconds per stage."""
+    ``timings``, when given, receives seconds per stage; ``camera``: the frame's intrinsics (motion blur), the
+    render's pinhole camera, needed by ``distortion``: the photo's camera is then :func:`output_camera`
+    (``record["camera"]``: its COLMAP model and params)."""
     _check_input(linear_rgb, depth, params)
+    if params.distortion is not None and camera is None:
+        camera = lens_camera(params, np.shape(linear_rgb)[1], np.shape(linear_rgb)[0])
     rng = np.random.default_rng(int(seed))
     record: dict[str, Any] = {"profile": params.name, "seed": int(seed), "effects": []}
     clock = [time.perf_counter()]
@@ -744,9 +830,21 @@ def capture(
         coc = circle_of_confusion_px(z, params.defocus, focus, w)
         x = apply_defocus(x, coc, params.defocus.max_blur_px)
         done("defocus", focus_distance_m=float(focus), max_coc_px=float(coc.max()))
-    # (reserved) motion blur: average sub-frame renders along the camera's path during the shutter time
-    # (record["shutter_s"] is chosen below, so AE must run on a first render): pipeline work.
-    # (reserved) lens distortion: Brown-Conrady remap of RGB *and* depth / instance GT: pipeline work.
+    if params.motion_blur is not None:  # its shutter time: the AE's choice on the unblurred irradiance
+        from synthleak.render.motion_blur import motion_blur_stage
+
+        x, blurred = motion_blur_stage(x, depth, params, camera)
+        done("motion_blur", **blurred)
+    if params.distortion is not None:
+        from synthleak.render.distortion import distorted_camera, sample_positions
+
+        assert camera is not None
+        if (camera.width, camera.height) != (w, h):
+            raise ValueError(f"capture: camera is {camera.width}x{camera.height}, the render {w}x{h}")
+        out_cam = distorted_camera(camera, params.distortion.coeffs, f"capture profile {params.name}: distortion")
+        map_x, map_y = sample_positions(out_cam, camera)
+        x = cv2.remap(x, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        done("distortion", distortion=params.distortion.coeffs.tolist(), distortion_focal_scale=out_cam.fx / camera.fx)
     if params.vignetting is not None:
         x = x * vignetting_map(h, w, params.vignetting.corner_stops)
         done("vignetting", vignetting_corner_stops=params.vignetting.corner_stops)
@@ -824,4 +922,12 @@ def capture(
         rgb, size = jpeg_roundtrip(rgb, params.recompress)
         done("recompress", recompress_quality=params.recompress.quality, recompress_bytes=size)
     record["output_size"] = [int(rgb.shape[1]), int(rgb.shape[0])]
+    if camera is not None and params.is_geometric:
+        from synthleak.core.dataset import colmap_camera_model
+
+        out = output_camera(camera, params)
+        if (out.width, out.height) != (rgb.shape[1], rgb.shape[0]):
+            raise RuntimeError(f"capture: photo is {rgb.shape[1]}x{rgb.shape[0]}, its camera {out.width}x{out.height}")
+        model, values = colmap_camera_model(out)
+        record["camera"] = {"model": model, "width": out.width, "height": out.height, "params": values}
     return Photo(np.ascontiguousarray(rgb), record)

@@ -16,6 +16,8 @@ from synthleak.atomic_io import TEMP_PREFIX, atomic_write_bytes, atomic_write_te
 from synthleak.core.dataset import (
     BOP_DEPTH_SCALE,
     DatasetError,
+    camera_dist_coeffs,
+    colmap_camera_model,
     encode_npy,
     encode_png,
     frame_complete,
@@ -193,18 +195,34 @@ def instance_to_dict(info: InstanceInfo, world_from_object: np.ndarray | None = 
     }
 
 
-def _colmap_cameras(camera: Camera) -> str:
+def camera_ids(cameras: list[Camera]) -> tuple[list[Camera], list[int]]:
+    """The distinct cameras of a sequence's per-frame ``cameras`` (in order of first use) and each frame's
+    COLMAP CAMERA_ID (1-based index into them)."""
+    distinct: list[Camera] = []
+    ids = []
+    for camera in cameras:
+        if camera not in distinct:
+            distinct.append(camera)
+        ids.append(distinct.index(camera) + 1)
+    return distinct, ids
+
+
+def _colmap_cameras(camera: Camera | list[Camera]) -> str:
+    """cameras.txt of one camera or of the distinct per-frame cameras (``PINHOLE``, or ``OPENCV`` /
+    ``FULL_OPENCV`` with the capture's lens distortion: :func:`synthleak.core.dataset.colmap_camera_model`)."""
+    cameras = camera_ids(camera)[0] if isinstance(camera, list) else [camera]
+    lines = []
+    for i, cam in enumerate(cameras):
+        model, params = colmap_camera_model(cam)
+        lines.append(f"{i + 1} {model} {int(cam.width)} {int(cam.height)} " + " ".join(repr(float(x)) for x in params))
     return (
         "# Camera list with one line of data per camera:\n"
         "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
-        "# Number of cameras: 1\n"
-        f"1 PINHOLE {int(camera.width)} {int(camera.height)} "
-        + " ".join(repr(float(x)) for x in (camera.fx, camera.fy, camera.cx, camera.cy))
-        + "\n"
+        f"# Number of cameras: {len(cameras)}\n" + "".join(line + "\n" for line in lines)
     )
 
 
-def _colmap_images(names: list[str], poses: list[np.ndarray]) -> str:
+def _colmap_images(names: list[str], poses: list[np.ndarray], ids: list[int] | None = None) -> str:
     lines = [
         "# Image list with two lines of data per image:",
         "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
@@ -215,17 +233,20 @@ def _colmap_images(names: list[str], poses: list[np.ndarray]) -> str:
         q = snap(quat_wxyz_from_matrix(pose[:3, :3]), POSE_STEP)
         t = snap(pose[:3, 3], POSE_STEP)
         values = " ".join(repr(float(x)) for x in (*q, *t))
-        lines += [f"{i + 1} {values} 1 {name}", ""]
+        lines += [f"{i + 1} {values} {1 if ids is None else ids[i]} {name}", ""]
     return "\n".join(lines) + "\n"
 
 
-def check_existing_plan(seq_dir: Path, camera: Camera, frames: list[str], poses: list[np.ndarray]) -> None:
+def check_existing_plan(seq_dir: Path, camera: Camera, frames: list[str], poses: list[np.ndarray],
+                        cameras: list[Camera] | None = None) -> None:
     """Refuse to resume into a folder whose COLMAP files describe other cameras or poses (another config).
-    ``poses`` as :func:`write_sequence_metadata` takes them."""
+    ``poses`` and ``cameras`` as :func:`write_sequence_metadata` takes them."""
     seq_dir = Path(seq_dir)
+    cams = cameras or [camera] * len(frames)
     for path, text in (
-        (seq_dir / "colmap" / "cameras.txt", _colmap_cameras(camera)),
-        (seq_dir / "colmap" / "images.txt", _colmap_images(frames, [np.asarray(p) for p in poses])),
+        (seq_dir / "colmap" / "cameras.txt", _colmap_cameras(cams if cameras else camera)),
+        (seq_dir / "colmap" / "images.txt", _colmap_images(frames, [np.asarray(p) for p in poses],
+                                                           camera_ids(cams)[1])),
     ):
         if path.is_file() and path.read_text() != text:
             raise DatasetError(
@@ -244,32 +265,41 @@ def write_sequence_metadata(
     frame: str = "world",
     target_instance_id: int | None = None,
     split: dict[str, list[str]] | None = None,
+    cameras: list[Camera] | None = None,
 ) -> None:
     """COLMAP text, BOP json, objects.json and (scenes) split.json. ``poses`` are in ``frame``: ``cam_from_world``
     for ``frame == "world"``; for ``frame == "object"`` (attacker sequences) ``cam_from_object`` poses and instances
     whose ``world_from_object`` is expressed in the target's canonical frame (see :func:`to_object_frame`).
+    ``cameras``: each frame's camera when the capture distorts or resizes (default: ``camera`` for every frame):
+    COLMAP gets one camera per distinct camera, BOP each frame's ``cam_K`` (and ``cam_dist``, OpenCV's
+    ``[k1, k2, p1, p2, k3]``, for a distorted one).
     """
     seq_dir = Path(seq_dir)
     if frame not in ("world", "object"):
         raise ValueError(f"frame must be 'world' or 'object', got {frame!r}")
     pose_name = "cam_from_world" if frame == "world" else "cam_from_object"
     poses = [check_pose(p, f"{seq_dir.name}/{n}: {pose_name}") for n, p in zip(frames, poses, strict=True)]
-    atomic_write_text(seq_dir / "colmap" / "cameras.txt", _colmap_cameras(camera))
-    atomic_write_text(seq_dir / "colmap" / "images.txt", _colmap_images(frames, poses))
+    cams = cameras or [camera] * len(frames)
+    if len(cams) != len(frames):
+        raise ValueError(f"{seq_dir}: {len(cams)} cameras for {len(frames)} frames")
+    atomic_write_text(seq_dir / "colmap" / "cameras.txt", _colmap_cameras(cams if cameras else camera))
+    atomic_write_text(seq_dir / "colmap" / "images.txt", _colmap_images(frames, poses, camera_ids(cams)[1]))
     atomic_write_text(
         seq_dir / "colmap" / "points3D.txt",
         "# 3D point list with one line of data per point:\n# Number of points: 0\n",
     )
-    cam_k = camera.K.ravel().tolist()
     scene_camera, scene_gt = {}, {}
-    for name, pose in zip(frames, poses, strict=True):
+    for name, pose, cam in zip(frames, poses, cams, strict=True):
         key = str(int(frame_stem(name)))
         scene_camera[key] = {
-            "cam_K": cam_k,
+            "cam_K": cam.K.ravel().tolist(),
             "cam_R_w2c": pose[:3, :3].ravel().tolist(),
             "cam_t_w2c": (pose[:3, 3] * 1000.0).tolist(),
             "depth_scale": BOP_DEPTH_SCALE,
         }
+        dist = camera_dist_coeffs(cam)
+        if dist is not None:
+            scene_camera[key]["cam_dist"] = dist.tolist()  # not a BOP field: OpenCV [k1, k2, p1, p2, k3]
         entries = []
         for info in instances:
             cam_from_object = snap_pose(pose @ np.asarray(info.world_from_object, dtype=np.float64))

@@ -24,6 +24,7 @@ from synthleak.render.capture import (
     CaptureParams,
     ColorMatrix,
     Defocus,
+    Distortion,
     Exposure,
     Jpeg,
     Resize,
@@ -32,6 +33,7 @@ from synthleak.render.capture import (
     Vignetting,
     WhiteBalance,
 )
+from synthleak.render.motion_blur import MotionBlur, hand_shake
 
 
 def _ev100_shutter(lux: float, f_number: float, iso: float) -> float:
@@ -79,11 +81,16 @@ PHONE = CaptureParams(
         iso_min=PHONE_BASE_ISO,
         iso_max=3200.0,
     ),
+    # residual hand shake after OIS, RMS pitch / yaw rate (assumed; unstabilised ~1.7 deg/s, motion_blur.py)
+    motion_blur=MotionBlur(angular_velocity_deg_s=hand_shake(0.6, np.ones(3))),
     sensor=PHONE_SENSOR,
     color_matrix=MEAN_CCM,
     white_balance=WhiteBalance(illuminant_k=4700.0, error_mired=0.0),  # Infinigen's mean lamp CCT
     tone_curve=ToneCurve(strength=1.0),  # Brooks et al.'s smoothstep
     jpeg=Jpeg(quality=95, subsampling="4:2:0"),  # high in-camera quality (assumed), 4:2:0 as cameras write
+    # the residual after the ISP's distortion correction of a phone main camera: mild barrel (assumed); each
+    # device draws its own (PHONE_VARIATION)
+    distortion=Distortion(k1=-0.02, k2=0.005),
 )
 
 PHONE_LOW_LIGHT = replace(
@@ -95,6 +102,7 @@ PHONE_LOW_LIGHT = replace(
         PHONE.exposure, reference_shutter_s=_ev100_shutter(5.0, PHONE_F_NUMBER, PHONE_BASE_ISO), max_shutter_s=1 / 15
     ),
     vignetting=Vignetting(corner_stops=0.8),  # ISPs correct less shading at high gain, to spare noise (assumed)
+    motion_blur=MotionBlur(angular_velocity_deg_s=hand_shake(1.0, np.ones(3))),  # and twice the shutter time
     white_balance=WhiteBalance(illuminant_k=2700.0, error_mired=-15.0),  # 2700 K warm-white bulb; AWB keeps it warm
 )
 
@@ -102,6 +110,7 @@ WEB_PHOTO = CaptureParams(
     name="web-photo",
     base_iso=100.0,
     defocus=replace(PHONE_LENS, f_number=2.0),
+    motion_blur=MotionBlur(angular_velocity_deg_s=hand_shake(1.0, np.ones(3))),
     vignetting=Vignetting(corner_stops=0.5),
     exposure=Exposure(
         reference_shutter_s=_ev100_shutter(150.0, 2.0, 100.0),
@@ -115,6 +124,7 @@ WEB_PHOTO = CaptureParams(
     white_balance=WhiteBalance(illuminant_k=4700.0),
     tone_curve=ToneCurve(strength=0.8),
     jpeg=Jpeg(quality=92),
+    distortion=Distortion(k1=-0.05, k2=0.01),  # any camera, uncorrected or not (assumed); drawn per photo
     resize=Resize(longest_px=1536),  # services serve 1024-2048 px; never enlarged
     recompress=Jpeg(quality=80),  # services re-encode at q 70-90
 )
@@ -147,6 +157,15 @@ class Variation:
     jpeg_quality: tuple[int, int] | None = None
     resize_longest_px: tuple[int, int] | None = None
     recompress_quality: tuple[int, int] | None = None
+    shake_deg_s: tuple[float, float] | None = None
+    """log-U(lo, hi) RMS hand-shake pitch / yaw rate in deg/s; the photo's axis and rate from 3 normals
+    (:func:`synthleak.render.motion_blur.hand_shake`)."""
+    distortion_k1: tuple[float, float] | None = None
+    """U(lo, hi) radial k1 (the profile's ``distortion`` must be on)."""
+    distortion_k2: tuple[float, float] | None = None
+    """U(lo, hi) radial k2."""
+    distortion_tangential_sigma: float | None = None
+    """p1, p2 ~ N(0, sigma), clipped at 2.5 sigma (a decentred lens element)."""
 
 
 @dataclass(frozen=True)
@@ -163,6 +182,10 @@ PHONE_VARIATION = Variation(
     illuminant_k=(4700.0, 700.0, 3500.0, 6500.0),  # Infinigen's lamp colour temperature
     read_noise_log_sigma=0.26,  # Brooks et al.
     scene_lux=(80.0, 300.0),  # assumed: lit living rooms and offices
+    shake_deg_s=(0.3, 1.2),  # assumed: residual shake with OIS (unstabilised ~1.7 deg/s, motion_blur.py)
+    distortion_k1=(-0.05, 0.01),  # assumed: residual after the ISP's correction, mostly barrel
+    distortion_k2=(-0.005, 0.02),  # assumed
+    distortion_tangential_sigma=2e-4,  # assumed
 )
 PROFILES: dict[str, DeviceProfile] = {
     "ideal": DeviceProfile(IDEAL, Variation()),
@@ -174,6 +197,7 @@ PROFILES: dict[str, DeviceProfile] = {
             illuminant_k=(2700.0, 300.0, 2200.0, 3500.0),
             wb_error_sigma_mired=20.0,
             scene_lux=(2.0, 10.0),
+            shake_deg_s=(0.5, 2.0),  # assumed: a tired hand at night, 1/15 s; OIS at its limit
         ),  # fmt: skip
     ),
     "web-photo": DeviceProfile(
@@ -193,6 +217,10 @@ PROFILES: dict[str, DeviceProfile] = {
             jpeg_quality=(85, 95),  # assumed in-camera quality
             resize_longest_px=(1024, 2048),  # as services serve photos
             recompress_quality=(70, 90),  # as services re-encode
+            shake_deg_s=(0.2, 4.0),  # assumed: tripods to unstabilised hands
+            distortion_k1=(-0.15, 0.05),  # assumed: phones, compacts, action cameras short of fisheye
+            distortion_k2=(-0.02, 0.06),  # assumed
+            distortion_tangential_sigma=5e-4,  # assumed
         ),
     ),
 }
@@ -213,13 +241,17 @@ def profile(name: str) -> CaptureParams:
 def draw_device(profile_name: str, seed: int) -> CaptureParams:
     """One photo's parameters: profile ``profile_name`` with its :class:`Variation` drawn from
     ``numpy.random.default_rng(seed)``. Always the same draws in the same order (4 normals, 10 uniforms,
-    4 CCM weights), used or not, so every profile reads the stream the same way."""
+    4 CCM weights, then 3 hand-shake normals and 1 uniform, then 2 uniforms and 2 normals for the lens
+    distortion), used or not, so every profile reads the stream the
+    same way."""
     prof = _profile(profile_name)
     p, v = prof.nominal, prof.variation
     rng = np.random.default_rng(int(seed))
     z = rng.standard_normal(4)  # ev bias, wb error, illuminant, read noise
     u = rng.random(10)  # red gain, blue gain, shot noise, lux, vignetting, tone, jpeg, resize, recompress, spare
     weights = rng.uniform(1e-8, 1.0, size=4)  # Brooks et al.: uniform convex weights of the 4 matrices
+    shake_z, shake_u = rng.standard_normal(3), rng.random()  # drawn after the others: earlier draws unchanged
+    lens_u, lens_z = rng.random(2), rng.standard_normal(2)  # k1, k2; p1, p2 (after the others, too)
 
     def clip_normal(mean: float, sigma: float, k: float) -> float:
         return float(np.clip(mean + sigma * k, mean - 2.5 * sigma, mean + 2.5 * sigma))
@@ -276,4 +308,18 @@ def draw_device(profile_name: str, seed: int) -> CaptureParams:
         out = replace(out, resize=replace(p.resize, longest_px=integer(v.resize_longest_px, u[7])))
     if v.recompress_quality is not None and p.recompress is not None:
         out = replace(out, recompress=replace(p.recompress, quality=integer(v.recompress_quality, u[8])))
+    if v.shake_deg_s is not None and p.motion_blur is not None:
+        shake = hand_shake(log_uniform(v.shake_deg_s, shake_u), shake_z)
+        out = replace(out, motion_blur=replace(p.motion_blur, angular_velocity_deg_s=shake))
+    if p.distortion is not None:
+        lens = p.distortion
+        if v.distortion_k1 is not None:
+            lens = replace(lens, k1=round(uniform(v.distortion_k1, lens_u[0]), 6))
+        if v.distortion_k2 is not None:
+            lens = replace(lens, k2=round(uniform(v.distortion_k2, lens_u[1]), 6))
+        if v.distortion_tangential_sigma is not None:
+            sigma = v.distortion_tangential_sigma
+            lens = replace(lens, p1=round(clip_normal(0.0, sigma, lens_z[0]), 8),
+                           p2=round(clip_normal(0.0, sigma, lens_z[1]), 8))
+        out = replace(out, distortion=lens)
     return out

@@ -22,16 +22,17 @@ from typing import Any
 import numpy as np
 from rich.progress import Progress
 
+from synthleak.atomic_io import atomic_write_bytes
 from synthleak.cache import MARKER
 from synthleak.config import StudyConfig, config_to_dict
-from synthleak.core.dataset import BOP_DEPTH_SCALE, frame_complete, frame_name, read_index
+from synthleak.core.dataset import BOP_DEPTH_SCALE, RENDER_TWINS, encode_png, frame_complete, frame_name, read_index
 from synthleak.core.types import Camera, RenderScene
 from synthleak.errors import StageError
 from synthleak.executors import Executor, LocalExecutor, chunks
 from synthleak.portable import snap_pose
 from synthleak.render.base import Frame
 from synthleak.render.bop_full import write_bop_extras
-from synthleak.render.capture import capture, gamma22_to_linear, srgb8_to_linear
+from synthleak.render.capture import capture, gamma22_to_linear, output_camera, srgb8_to_linear
 from synthleak.render.dataset import (
     atomic_write_json,
     check_capture_plan,
@@ -46,7 +47,16 @@ from synthleak.render.dataset import (
     write_sequence_metadata,
 )
 from synthleak.render.devices import draw_device
+from synthleak.render.distortion import raycast_camera
 from synthleak.render.furniture_views import closeup_views, furniture_walkthrough
+from synthleak.render.light_conditions import (
+    LIGHTING_RECORDS,
+    SAME,
+    check_lighting_plan,
+    lighting_kinds,
+    lighting_record,
+    lit_scene,
+)
 from synthleak.render.lighting import with_default_light
 from synthleak.render.registry import get_renderer
 from synthleak.render.trajectories import WALKTHROUGHS, orbit, walkthrough
@@ -164,6 +174,22 @@ class FrameTask:
     indices: list[int]
     poses: list[np.ndarray]
     profiles: list[str] = field(default_factory=list)
+    lighting: list[str] = field(default_factory=list)
+    """Per frame the capture kind whose lighting condition lights it (``""``: the stage's lights); empty when
+    every frame of the sequence has the stage's lights."""
+    twins: list[int] = field(default_factory=list)
+    """Indices whose render is kept beside the photo (:func:`twin_indices`)."""
+
+
+def twin_indices(profiles: list[str], frames: list[str], split: dict[str, list[str]] | None) -> list[int]:
+    """The first photographed frame of each kind of capture in the sequence (mapping frames, genuine queries;
+    an attacker orbit has one kind), in frame order."""
+    query = set(split["query"]) if split else set()
+    first: dict[tuple[str, bool], int] = {}
+    for i, (profile, frame) in enumerate(zip(profiles, frames, strict=True)):
+        if profile != IDEAL:
+            first.setdefault((profile, frame in query), i)
+    return sorted(first.values())
 
 
 # ------------------------------------------------------------------------------------------ photographic capture
@@ -183,7 +209,7 @@ def capture_profiles(config: StudyConfig, kind: str, frames: list[str], split: d
     return [rc.capture_genuine if f in query else rc.capture_map for f in frames]
 
 
-def _linear_radiance(frame: Frame, renderer: Any) -> np.ndarray:
+def linear_radiance(frame: Frame, renderer: Any) -> np.ndarray:
     """The frame's linear radiance: the backend's own (mitsuba, Blender), else its 8-bit ``rgb`` decoded by the
     backend's ``rgb_encoding`` (pyrender: gamma 2.2, :func:`synthleak.render.capture.gamma22_to_linear`)."""
     if frame.linear is not None:
@@ -196,34 +222,65 @@ def _linear_radiance(frame: Frame, renderer: Any) -> np.ndarray:
     raise ValueError(f"renderer {getattr(renderer, 'name', renderer)!r}: unknown rgb_encoding {encoding!r}")
 
 
-def photograph(frame: Frame, renderer: Any, profile: str, root_seed: int, sequence: str, index: int
+def frame_cameras(config: StudyConfig, name: str, profiles: list[str], camera: Camera) -> list[Camera] | None:
+    """Each frame's camera (the photo's: :func:`synthleak.render.capture.output_camera` of the frame's drawn
+    device, the same draw :func:`photograph` makes), or ``None`` when every frame keeps the render's ``camera``
+    (then the dataset's single camera is written as before)."""
+    cameras = [camera if profile == IDEAL else
+               output_camera(camera, draw_device(profile, derive_seed(config.seed, "capture-device", name, i)))
+               for i, profile in enumerate(profiles)]
+    return cameras if any(c != camera for c in cameras) else None
+
+
+def _worker_gt(job: SequenceJob, renderer: Any) -> Any:
+    """The exact-GT ray caster of the prepared scene (the backend's own where it has one), for the cameras of
+    distorted or resized photos; cached with the worker's renderer."""
+    if "gt" not in _WORKER_RENDERER:
+        from synthleak.render.raycast import RaycastGT
+
+        gt = getattr(renderer, "_gt", None)
+        _WORKER_RENDERER["gt"] = gt if isinstance(gt, RaycastGT) else RaycastGT(job.scene().meshes)
+    return _WORKER_RENDERER["gt"]
+
+
+def photograph(frame: Frame, renderer: Any, profile: str, root_seed: int, sequence: str, index: int,
+               *, camera: Camera | None = None, cam_from_world: np.ndarray | None = None, gt: Any = None,
                ) -> tuple[Frame, dict[str, Any]]:
     """Frame ``index`` of ``sequence`` photographed with capture ``profile``: the device drawn from
     ``derive_seed(root_seed, "capture-device", sequence, index)`` (:func:`synthleak.render.devices.draw_device`),
     the sensor noise from ``derive_seed(root_seed, "capture-noise", sequence, index)``, the GT depth for
-    defocus. Returns the frame with the photo as ``rgb`` (depth and instance ids untouched) and the record.
+    defocus. Returns the frame with the photo as ``rgb`` and the record.
 
-    Resizing is off (a profile's ``resize`` is dropped): a resized photo needs the intrinsics, depth and ids
-    scaled with it, a later step. Every other effect leaves pixels where they are, so the ground truth stays
-    exact; JPEG is encoded and decoded back into the frame's pixels (the dataset keeps PNG files)."""
+    Lens distortion and resize change the camera (:func:`synthleak.render.capture.output_camera`, what
+    :func:`frame_cameras` writes): with the render's ``camera``, the frame's world ``cam_from_world`` and the
+    scene's ray caster ``gt`` (:class:`synthleak.render.raycast.RaycastGT`) the depth and instance ids are ray
+    cast again for the photo's camera (exact GT of every photo pixel centre); without them both effects are
+    dropped (``record["geometry_skipped"]``) and depth and ids stay the render's. JPEG is encoded and decoded
+    back into the frame's pixels (the dataset keeps PNG files)."""
     device_seed = derive_seed(root_seed, "capture-device", sequence, index)
     noise_seed = derive_seed(root_seed, "capture-noise", sequence, index)
     drawn = draw_device(profile, device_seed)
-    params = replace(drawn, resize=None)  # resizing needs the intrinsics (and depth, ids) scaled: a later step
-    photo = capture(_linear_radiance(frame, renderer), params, noise_seed, depth=frame.depth)
-    if photo.rgb.shape != frame.rgb.shape:
-        raise RuntimeError(f"capture profile {profile!r} changed the frame size {frame.rgb.shape} to {photo.rgb.shape}")
+    geometric = camera is not None and cam_from_world is not None and gt is not None
+    params = drawn if geometric else replace(drawn, resize=None, distortion=None)
+    out_camera = output_camera(camera, params) if geometric else None
+    photo = capture(linear_radiance(frame, renderer), params, noise_seed, depth=frame.depth, camera=camera)
     record = {**photo.record, "device_seed": device_seed}
-    if drawn.resize is not None:
-        record["resize_skipped"] = True  # the profile resizes; the wired path does not yet
+    if out_camera is not None and out_camera != camera:
+        depth, instance = raycast_camera(gt, out_camera, cam_from_world)
+        frame = replace(frame, depth=depth, instance=instance)
+    elif drawn.is_geometric and not geometric:
+        record["geometry_skipped"] = True  # the profile distorts or resizes; this call has no camera / GT for it
+    if photo.rgb.shape[:2] != frame.depth.shape:
+        raise RuntimeError(f"capture profile {profile!r}: photo {photo.rgb.shape} but ground truth {frame.depth.shape}")
     return replace(frame, rgb=photo.rgb, linear=None), record
 
 
 _WORKER_RENDERER: dict[str, Any] = {}
-"""The renderer prepared by the last task in this process (one scene at a time, to bound memory)."""
+"""The renderers prepared by the last task in this process (one scene at a time, to bound memory): one per
+lighting condition of that scene (``renderers``: label -> renderer, ``""``: the stage's lights)."""
 
 
-def _prepared_renderer(job: SequenceJob, config: StudyConfig):
+def _prepared_renderer(job: SequenceJob, config: StudyConfig, lighting: str = ""):
     if isinstance(job.stage, RenderScene):
         source: Any = id(job.stage)
     else:  # a stage rewritten in place (forced re-staging) must be prepared again
@@ -232,10 +289,13 @@ def _prepared_renderer(job: SequenceJob, config: StudyConfig):
     key = repr((source, config_to_dict(config)["render"]))
     if _WORKER_RENDERER.get("key") != key:
         _WORKER_RENDERER.clear()
+        _WORKER_RENDERER.update(key=key, renderers={})
+    renderers = _WORKER_RENDERER["renderers"]
+    if lighting not in renderers:
         renderer = get_renderer(config.render)
-        renderer.prepare(job.scene())
-        _WORKER_RENDERER.update(key=key, renderer=renderer)
-    return _WORKER_RENDERER["renderer"]
+        renderer.prepare(lit_scene(job.scene(), lighting, config.seed, job.name))
+        renderers[lighting] = renderer
+    return renderers[lighting]
 
 
 def render_frame_task(task: FrameTask) -> int:
@@ -243,12 +303,16 @@ def render_frame_task(task: FrameTask) -> int:
     so the bytes do not depend on which worker renders it or what it rendered before)."""
     rc = task.config.render
     camera = Camera.from_hfov(rc.width, rc.height, rc.hfov_deg)
-    renderer = _prepared_renderer(task.job, task.config)
     profiles = task.profiles or [IDEAL] * len(task.indices)
-    for i, pose, profile in zip(task.indices, task.poses, profiles, strict=True):
+    lighting = task.lighting or [""] * len(task.indices)
+    for i, pose, profile, light in zip(task.indices, task.poses, profiles, lighting, strict=True):
+        renderer = _prepared_renderer(task.job, task.config, light)
         frame = renderer.render(camera, pose, derive_seed(task.config.seed, "render", task.job.name, i))
         if profile != IDEAL:
-            frame, record = photograph(frame, renderer, profile, task.config.seed, task.job.name, i)
+            if i in task.twins:
+                atomic_write_bytes(task.job.out_dir / RENDER_TWINS / frame_name(i), encode_png(frame.rgb))
+            frame, record = photograph(frame, renderer, profile, task.config.seed, task.job.name, i, camera=camera,
+                                       cam_from_world=pose, gt=_worker_gt(task.job, renderer))
             write_capture_record(task.job.out_dir, frame_name(i), record)
         elif task.profiles:  # a photographed sequence records every frame, its ideal ones too
             write_capture_record(task.job.out_dir, frame_name(i), {"profile": IDEAL, "effects": []})
@@ -283,10 +347,16 @@ def plan_sequence(job: SequenceJob, config: StudyConfig, scene: RenderScene | No
     else:
         stored_poses, instances = poses, [scene.instances[i] for i in sorted(scene.instances)]
     profiles = capture_profiles(config, kind, frames, split)
-    check_existing_plan(out_dir, camera, frames, stored_poses)
-    check_capture_plan(out_dir, frames, profiles)
+    cameras = frame_cameras(config, name, profiles, camera)  # distorted / resized photos: their own cameras
+    check_capture_plan(out_dir, frames, profiles)  # first: another profile also changes the cameras
+    check_existing_plan(out_dir, camera, frames, stored_poses, cameras)
+    lighting = lighting_kinds(rc, kind, frames, split)
+    lights = lighting_record(scene, lighting, frames, config.seed, name)
+    check_lighting_plan(out_dir, lights, any(frame_complete(out_dir, f) for f in frames))
     out_dir.mkdir(parents=True, exist_ok=True)
     clean_temp_files(out_dir)
+    if lights is not None:  # each frame's lighting condition, with the conditions drawn
+        atomic_write_json(out_dir / LIGHTING_RECORDS, lights)
     # the plan (poses, cameras, objects) first: a resumed run with another config is refused above
     write_sequence_metadata(
         out_dir,
@@ -297,10 +367,13 @@ def plan_sequence(job: SequenceJob, config: StudyConfig, scene: RenderScene | No
         frame="object" if kind == "attacker" else "world",
         target_instance_id=scene.target_instance_id if kind == "attacker" else None,
         split=split,
+        cameras=cameras,
     )
     todo = [i for i in range(len(frames)) if not frame_complete(out_dir, frames[i])]
     photographed = any(p != IDEAL for p in profiles)
-    return [FrameTask(job, config, idx, [poses[i] for i in idx], [profiles[i] for i in idx] if photographed else [])
+    twins = twin_indices(profiles, frames, split)
+    return [FrameTask(job, config, idx, [poses[i] for i in idx], [profiles[i] for i in idx] if photographed else [],
+                      [lighting[i] for i in idx] if lights is not None else [], [i for i in idx if i in twins])
             for idx in chunks(todo, FRAMES_PER_TASK)]
 
 
@@ -479,5 +552,8 @@ profile other than ``ideal`` also ``capture``: the profile of map, genuine and a
     capture = {"map": rc.capture_map, "genuine": rc.capture_genuine, "attacker": rc.capture_attacker}
     if any(p != IDEAL for p in capture.values()):  # an all-ideal manifest keeps the bytes it had before capture
         manifest["capture"] = capture
+    lighting = {"map": rc.light_map, "genuine": rc.light_genuine, "attacker": rc.light_attacker}
+    if any(v != SAME for v in lighting.values()):  # likewise: an all-"same" manifest is unchanged
+        manifest["lighting"] = lighting
     atomic_write_json(out_dir / MANIFEST, manifest)
     return out_dir / MANIFEST

@@ -1,8 +1,11 @@
-"""The attacker's environment: a warehouse-like inventory hall with ONE target object at its centre.
+"""The attacker's environment: ONE target object at the centre of a setting drawn for that object.
 
-The hall (``scenes_usd/attacker_hall.toml``) differs from every room: larger, concrete floor, metal /
-concrete walls, cold lights placed high. The target stands with its canonical frame at the hall origin
-(identity rotation), so ``world_from_object`` is a pure translation:
+By default each object gets its own setting (:mod:`synthleak.scene.attacker_settings`: an inventory hall, a
+home, a shop floor, a photo studio with paper sweeps or a courtyard; each wall drawn on its own, so groups of
+orbit views see different backgrounds), sharing no surface with the rooms' shells. :func:`hall_shell` is the
+former one-hall-per-study environment (``scenes_usd/attacker_hall.toml``), used when a hall is passed to
+:func:`compose_attacker`. The target stands with its canonical frame at the origin (identity rotation), so
+``world_from_object`` is a pure translation:
 
 * floor objects stand on the floor at the centre;
 * surface objects stand on a plain pedestal (shell piece ``pedestal``);
@@ -19,8 +22,9 @@ import numpy as np
 from synthleak.assets.mesh import ObjectMesh
 from synthleak.core.types import Light
 from synthleak.geometry.poses import make_pose
+from synthleak.scene.attacker_settings import draw_setting, setting_texture
 from synthleak.scene.plan import ATTACKER_TARGET_ID, AttackerPlan
-from synthleak.scene.room import RoomShell, build_room_shell, ceiling_lights, f32, shell_texture
+from synthleak.scene.room import RoomShell, build_room_shell, ceiling_lights, f32
 from synthleak.scene.shell_geometry import planar_box
 from synthleak.scene.spec import PlacedObject, SceneSpec
 from synthleak.scene.styles import ShellStyle, attacker_styles
@@ -41,6 +45,12 @@ def hall_shell(seed: int, style_index: int = 0) -> tuple[ShellStyle, RoomShell]:
     style = styles[style_index % len(styles)]
     assert style.size is not None
     return style, build_room_shell(style.size, style, make_rng(seed, "attacker_hall", "shell"))
+
+
+def _prop_texture(style: ShellStyle, surface: str, rng: np.random.Generator, size: int, span: float) -> np.ndarray:
+    """A prop's texture: a (kind, colour) of the style's finish (a setting's own kinds included)."""
+    kind, colour = style.finishes[surface].draw(rng)
+    return setting_texture(kind, colour, rng, size, span)
 
 
 def _prop(
@@ -76,31 +86,32 @@ def _target_pose_and_props(
     if support == "surface":
         side = max(x1 - x0, y1 - y0) + 0.2
         ext = np.array([side, side, PEDESTAL_HEIGHT])
-        tex = shell_texture(style, "pedestal", rng, 512, side)
+        tex = _prop_texture(style, "pedestal", rng, 512, side)
         pedestal = _prop("pedestal", ext, make_pose(np.eye(3), [0.0, 0.0, 0.0]), tex, "floor", 0.5)
         return make_pose(np.eye(3), [0.0, 0.0, PEDESTAL_HEIGHT - z0]), [pedestal]
     if support == "wall":
         height = z1 - z0
         bottom = max(PANEL_CENTRE - height / 2, 0.3)
         ext = np.array([max(x1 - x0 + 1.2, 1.6), 0.08, max(bottom + height + 0.6, 2.2)])
-        tex = shell_texture(style, "panel", rng, 1024, ext[0])
+        tex = _prop_texture(style, "panel", rng, 1024, ext[0])
         panel_pose = make_pose(np.eye(3), [0.0, y0 - 0.001 - ext[1] / 2, 0.0])
         panel = _prop("panel", ext, panel_pose, tex, "floor", 0.9)
         return make_pose(np.eye(3), [0.0, 0.0, bottom - z0]), [panel]
     if support == "ceiling":
         side = max(x1 - x0, y1 - y0) + 2.0
         ext = np.array([side, side, 0.06])
-        tex = shell_texture(style, "panel", rng, 1024, side)
+        tex = _prop_texture(style, "panel", rng, 1024, side)
         canopy = _prop("canopy", ext, make_pose(np.eye(3), [0.0, 0.0, CANOPY_HEIGHT]), tex, "none", 0.9)
         return make_pose(np.eye(3), [0.0, 0.0, CANOPY_HEIGHT - z1]), [canopy]
     raise ValueError(f"attacker target: field 'support' must be floor|wall|surface|ceiling, got {support!r}")
 
 
-def hall_lights(style: ShellStyle, seed: int, object_id: str) -> list[Light]:
-    """High, cold hall lights (rect panels / sphere bulbs spread over the hall ceiling), drawn per object."""
+def hall_lights(style: ShellStyle, seed: int, object_id: str, count: tuple[int, int] = (4, 7)) -> list[Light]:
+    """Ceiling lights of the setting (rect panels / sphere bulbs spread over its ceiling; ``count``: [lo, hi)
+    lights), drawn per object."""
     assert style.size is not None
     rng = make_rng(seed, "attacker", object_id, "lights")
-    return ceiling_lights(style.size, int(rng.integers(4, 7)), style, rng, prefix="hall_light")
+    return ceiling_lights(style.size, int(rng.integers(*count)), style, rng, prefix="hall_light")
 
 
 def compose_attacker(
@@ -109,14 +120,25 @@ def compose_attacker(
     seed: int,
     hall: tuple[ShellStyle, RoomShell] | None = None,
 ) -> SceneSpec:
-    """The attacker stage of one object: hall shell, optional prop (pedestal / panel / canopy), the target."""
+    """The attacker stage of one object: its setting's shell (``hall``: the given hall's instead), optional prop
+    (pedestal / panel / canopy), the target."""
     from synthleak.assets.materials import with_materials
     from synthleak.assets.variants import variant
 
-    style, shell = hall if hall is not None else hall_shell(seed)
     model = with_materials(library[plan.model_id], dict(plan.materials))
     v = variant(model, plan.variant_seed, plan.magnitude, plan.kinds)
     mesh = v.build()
+    metadata: dict = {"attacker_object": plan.object_id}
+    if hall is not None:
+        style, shell = hall
+        metadata["style"] = style.name
+        n_lights = (4, 7)
+    else:
+        setting = draw_setting(seed, plan.object_id, mesh.extents())
+        style, shell = setting.style, setting.shell
+        n_lights = setting.kind.lights
+        metadata |= {"style": style.name, "setting": {k: [kind, list(c)] for k, (kind, c) in
+                                                       sorted(setting.surfaces.items())}}
     prop_rng = make_rng(seed, "attacker", plan.object_id, "props")
     pose, props = _target_pose_and_props(model.support, mesh, style, prop_rng)
     target = PlacedObject(
@@ -137,10 +159,10 @@ def compose_attacker(
         name=f"attacker_{plan.object_id}",
         kind="attacker",
         objects=[*shell.pieces, *props, target],
-        lights=hall_lights(style, seed, plan.object_id),
+        lights=hall_lights(style, seed, plan.object_id, n_lights),
         room_size=shell.size,
         seed=plan.variant_seed,
         target_instance_id=ATTACKER_TARGET_ID,
         ambient=ambient,
-        metadata={"style": style.name, "attacker_object": plan.object_id},
+        metadata=metadata,
     )

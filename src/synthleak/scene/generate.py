@@ -20,6 +20,7 @@ from synthleak.config import StudyConfig
 from synthleak.core.dataset import INDEX_NAME, DatasetError, read_index
 from synthleak.paths import scenes_usd_dir
 from synthleak.progress import progress_display
+from synthleak.scene.attacker_settings import SETTINGS_FORMAT
 from synthleak.scene.plan import ATTACKER_TARGET_ID, AttackerPlan, RoomPlan, StudyPlan, plan_study
 from synthleak.scene.usd_write import write_stage
 
@@ -147,11 +148,9 @@ def _room_entry(plan: RoomPlan, library: Mapping, out_dir: Path) -> dict[str, An
 
 
 def _attacker_entry(plan: AttackerPlan, library: Mapping, seed: int, out_dir: Path, hall_cache: list) -> dict:
-    from synthleak.scene.attacker_env import compose_attacker, hall_shell
+    from synthleak.scene.attacker_env import compose_attacker
 
-    if not hall_cache:
-        hall_cache.append(hall_shell(seed))
-    spec = compose_attacker(plan, library, seed, hall_cache[0])
+    spec = compose_attacker(plan, library, seed)  # its own setting (scene.attacker_settings)
     path = out_dir / plan.stage
     write_stage(spec, path)
     target = next(o for o in spec.objects if o.instance_id == ATTACKER_TARGET_ID)
@@ -161,6 +160,7 @@ def _attacker_entry(plan: AttackerPlan, library: Mapping, seed: int, out_dir: Pa
         "category": target.category,
         "support": target.support,
         "stage": path.name,
+        "setting": spec.metadata["style"],
         "target_instance_id": ATTACKER_TARGET_ID,
         "variant": target.variant_params,
         "sha256": _sha256(path),
@@ -239,7 +239,7 @@ def write_study_stages(
     attacker_tasks = [
         (
             a.object_id,
-            _plan_key(a, library, [a.model_id], plan.seed),
+            _plan_key((a, SETTINGS_FORMAT), library, [a.model_id], plan.seed),
             (lambda a=a: _attacker_entry(a, library, plan.seed, out_dir, hall_cache)),
         )
         for a in plan.attackers

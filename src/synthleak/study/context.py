@@ -14,6 +14,7 @@ from synthleak.core.dataset import read_index
 from synthleak.evaluate.defense_online import online_policy
 from synthleak.executors import Executor, LocalExecutor
 from synthleak.localize.defense import DefensePolicy
+from synthleak.localize.servers import Server, server_by_name, study_servers
 from synthleak.study.paths import StudyPaths
 
 
@@ -29,7 +30,9 @@ class StudyContext:
     executor: Executor = field(default_factory=lambda: LocalExecutor(1))
     """Where frames, maps, features and queries run (results do not depend on it)."""
     server_url: str | None = None
-    """Attack a running HTTP server instead of in-process localizers."""
+    """Attack running HTTP services instead of in-process localizers: one URL, a multi-map service's URL (its
+    ``GET /maps``) or a URL template with ``{server}``, ``{tier}``, ``{room}``, ``{room_index}``
+    (docs/service-protocol.md; :meth:`server_urls`)."""
     outputs: dict[str, Any] = field(default_factory=dict)
     """What the stages run so far returned, by stage name (the attack's rows, the sweeps' rows)."""
     timings: dict[str, float] = field(default_factory=dict)
@@ -61,10 +64,26 @@ class StudyContext:
         return read_index(self.paths.scene_dataset / "stages")["rooms"]
 
     def servers(self) -> dict[tuple[str, str], Path]:
-        """The map of every (tier, room) server: tiers in config order, rooms in index order."""
+        """The map of every (server, room) pair: servers (:func:`~synthleak.localize.servers.study_servers`: a tier,
+        or ``tier@profile+representation``) in config order, rooms in index order."""
         rooms = self.rooms()
-        return {(tier, room["name"]): self.paths.map_dir(tier, room["name"])
-                for tier in self.config.localize.tiers for room in rooms}
+        return {(server.name, room["name"]): self.paths.map_dir(server.name, room["name"])
+                for server in study_servers(self.config.localize) for room in rooms}
+
+    def server_urls(self) -> dict[tuple[str, str], str]:
+        """The service URL of every (server, room) pair of :meth:`servers` ({} in process): ``server_url`` as a
+        template, else the pairs a multi-map service lists at ``GET /maps``, else that one URL for every pair
+        (:func:`synthleak.localize.client.server_urls`)."""
+        if self.server_url is None:
+            return {}
+        from synthleak.localize.client import is_url_template, list_maps, server_urls
+
+        maps = None if is_url_template(self.server_url) else list_maps(self.server_url)
+        return server_urls(self.server_url, list(self.servers()), [room["name"] for room in self.rooms()], maps)
+
+    def server(self, name: str) -> Server:
+        """The server called ``name`` (a key of :meth:`servers`)."""
+        return server_by_name(self.config.localize)[name]
 
     def logs(self) -> dict[tuple[str, str], Path]:
         """The query log of every (tier, room) server."""

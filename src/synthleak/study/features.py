@@ -48,7 +48,7 @@ class FeaturesStage(Stage):
                      cache_key("features", done_key(ctx.paths.scene_dataset), done_key(ctx.paths.dataset),
                                ctx.genuine, tier, config.localize.max_keypoints, config.attack.queries_per_object,
                                *tier_weights(tier)), tier)
-                for tier in sorted({tier for tier, _ in ctx.servers()})]
+                for tier in sorted({ctx.server(name).tier for name, _ in ctx.servers()})]
 
     def make(self, ctx: StudyContext, todo: list[Unit]) -> None:
         plans = query_plans(ctx) if todo else {}

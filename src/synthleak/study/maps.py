@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from synthleak.cache import cache_key
+from synthleak.config import config_to_dict
 from synthleak.localize.mapping import build_map
 from synthleak.study.context import Stage, StudyContext, Unit
 from synthleak.study.tiers import tier_weights
@@ -24,17 +25,20 @@ class MapsStage(Stage):
     name = "maps"
 
     def units(self, ctx: StudyContext) -> list[Unit]:
-        localize = {k: v for k, v in ctx.section("localize").items() if k != "tiers"}
         render_key = ctx.render_key
-        profile = ctx.config.localize.profile
-        return [Unit(folder, cache_key("map", render_key, tier, localize, *tier_weights(tier, profile)),
-                     (tier, room))
-                for (tier, room), folder in ctx.servers().items()]
+        units = []
+        for (name, room), folder in ctx.servers().items():
+            server = ctx.server(name)
+            localize = {k: v for k, v in config_to_dict(server.localize(ctx.config.localize)).items()
+                        if k != "tiers"}  # this server's own profile: a profile added beside it rebuilds nothing
+            units.append(Unit(folder, cache_key("map", render_key, server.tier, localize,
+                                                *tier_weights(server.tier, server.profile)), (name, room)))
+        return units
 
     def make(self, ctx: StudyContext, todo: list[Unit]) -> None:
         if self.name in ctx.force:
             for unit in todo:
                 (unit.folder / "map.json").unlink(missing_ok=True)  # build_map reuses a matching map otherwise
-        tasks = [(ctx.paths.scene(room), tier, unit.folder, ctx.config.localize)
-                 for unit in todo for tier, room in [unit.item]]
+        tasks = [(ctx.paths.scene(room), server.tier, unit.folder, server.localize(ctx.config.localize))
+                 for unit in todo for name, room in [unit.item] for server in [ctx.server(name)]]
         ctx.executor.map(build_map_task, tasks, "maps", ctx.progress)

@@ -40,6 +40,6 @@ def query_plans(ctx: StudyContext) -> dict[str, list[dict]]:
         for item in plan:
             folder = ctx.paths.sequence(item["sequence"], item["genuine"])
             seq = sequences.get(folder) or sequences.setdefault(folder, load_sequence(folder))
-            item |= {"_image": str(seq.image_path(item["frame"])), "_camera": seq.camera}
+            item |= {"_image": str(seq.image_path(item["frame"])), "_camera": seq.camera_of(item["frame"])}
         plans[room] = plan
     return plans

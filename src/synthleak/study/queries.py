@@ -21,21 +21,24 @@ from synthleak.study.workers import QUERIES_PER_TASK, clear_worker_cache, worker
 
 
 def make_localizer(map_dir: Path, config: StudyConfig | Any, server_url: str | None, defense: Any = None):
-    """The study's server for one map: in process (running the ``defense`` policy if given) or over HTTP (the
-    remote server applies its own policy)."""
+    """The study's server for one map: in process (running the ``defense`` policy if given) or over HTTP at
+    ``server_url``, this map's service (the remote server applies its own policy; its server-side labels are
+    asked for, ``?labels=1``, and logged when it gives them)."""
     if server_url:
-        return HttpLocalizer(server_url)
+        return HttpLocalizer(server_url, labels=True)
     localize = config.localize if isinstance(config, StudyConfig) else config
     return Localizer.load(map_dir, localize, defense=defense)
 
 
 @dataclass
 class QueryTask:
-    """Consecutive planned queries of one (tier, room) server, for one worker."""
+    """Consecutive planned queries of one (server, room) pair, for one worker (``tier``: the server's name,
+    :mod:`synthleak.localize.servers`)."""
 
     map_dir: Path
     localize: Any
     server_url: str | None
+    """This (server, room) pair's service URL (:meth:`StudyContext.server_urls`), or None: in process."""
     tier: str
     room: str
     items: list[dict[str, Any]]
@@ -66,7 +69,8 @@ def query_task(task: QueryTask) -> int:
             result = localizer.localize_features(features, camera)
         else:
             result = localizer.localize(Path(entry["_image"]).read_bytes(), camera)
-        lines.append(query_line(entry, task.tier, task.room, result, task.defense, remote=bool(task.server_url)))
+        remote = bool(task.server_url) and not getattr(result, "labelled", False)  # labelled: as in process
+        lines.append(query_line(entry, task.tier, task.room, result, task.defense, remote=remote))
     atomic_write_text(task.part_file, "".join(line + "\n" for line in lines))
     return len(lines)
 
@@ -105,6 +109,7 @@ class QueriesStage(Stage):
     def make(self, ctx: StudyContext, todo: list[Unit]) -> dict[tuple[str, str], Path]:
         """Returns every server's log (made now or before)."""
         plans = query_plans(ctx) if todo else {}
+        urls = ctx.server_urls() if todo else {}
         part_files, tasks = [], []
         for unit in todo:
             tier, room = unit.item
@@ -114,14 +119,16 @@ class QueriesStage(Stage):
                     shutil.rmtree(stale)
             folder.mkdir(parents=True, exist_ok=True)
             plan = [dict(item) for item in plans[room]]
+            server = ctx.server(tier)
             if ctx.server_url is None:
                 for item in plan:
-                    item["_features"] = str(ctx.paths.features_file(tier, item["sequence"], item["frame"]))
+                    item["_features"] = str(ctx.paths.features_file(server.tier, item["sequence"], item["frame"]))
                     del item["_image"]
             parts = chunks(plan, QUERIES_PER_TASK)
             files = [folder / f"{i:05d}.jsonl" for i in range(len(parts))]
             part_files.append(files)
-            tasks += [QueryTask(ctx.paths.map_dir(tier, room), ctx.config.localize, ctx.server_url, tier, room, c,
+            localize = server.localize(ctx.config.localize)
+            tasks += [QueryTask(ctx.paths.map_dir(tier, room), localize, urls.get((tier, room)), tier, room, c,
                                 part, None if ctx.server_url else ctx.defense)
                       for c, part in zip(parts, files, strict=True) if not part.is_file()]
         ctx.executor.map(query_task, tasks, "queries", ctx.progress)

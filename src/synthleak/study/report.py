@@ -18,6 +18,7 @@ from synthleak.evaluate.genuine import genuine_localization
 from synthleak.evaluate.plots import plot_defense_tradeoff, plot_placement_cdfs, plot_presence_pr
 from synthleak.evaluate.query_log import defense_queries, read_query_log
 from synthleak.evaluate.room_plots import room_plots
+from synthleak.evaluate.server_summary import plot_utility_vs_leakage, server_rows, server_summary_markdown
 from synthleak.evaluate.study_report import report_markdown, side_by_side_sections, sweep_section, world_sweep_section
 from synthleak.evaluate.tables import plain, presence_pr_per_room
 from synthleak.evaluate.world_summary import world_summary
@@ -59,16 +60,27 @@ def write_report(ctx: StudyContext, rows: list[dict[str, Any]], sweep_rows: list
                                 config.defense.sweep_min_instances)
     atomic_write_text(paths.results / "genuine_localization.json", json.dumps(plain(genuine), indent=1))
     atomic_write_text(paths.results / "defense_tradeoff.json", json.dumps(plain(tradeoff), indent=1, default=str))
+    policy = (config.defense.min_fraction, config.defense.min_instances)
+    servers = server_rows(genuine, rows, tradeoff, config.attack.thresholds[0], policy)
+    atomic_write_text(paths.results / "servers.json", json.dumps(plain(servers), indent=1))
     plots = [plot_presence_pr(presence_pr_per_room(rows), paths.plots / "presence_pr.png"),
              plot_placement_cdfs(rows, paths.plots / "placement_cdf.png"),
              plot_defense_tradeoff(tradeoff, paths.plots / "defense_tradeoff.png"),
+             plot_utility_vs_leakage(servers, tradeoff, paths.plots / "utility_vs_leakage.png"),
              *room_plots(config, index["rooms"], scenes, rows, paths.plots)]
-    attack_sections = [*_side_by_side(ctx, rows, logs), *_defense_online(ctx, rows, logs)]
+    attack_sections = [*server_section(servers, config.attack.thresholds[0], policy),
+                       *_side_by_side(ctx, rows, logs), *_defense_online(ctx, rows, logs)]
     sweep_sections = [*sweep_section(sweep_rows, paths.plots, plots),
                       *world_sweep_section(config, world_rows, paths.plots, plots)]
     atomic_write_text(paths.report, report_markdown(config, index, world, genuine, rows, tradeoff, plots,
                                                     attack_sections, sweep_sections, ctx.timings))
     return paths.report
+
+
+def server_section(servers: list[dict[str, Any]], thresholds: Any, policy: tuple[float, int]) -> list[str]:
+    """"Utility and leakage per server" (every server of the study: tiers x profiles x representations)."""
+    return ["## Utility and leakage per server (tier, profile, map representation)\n",
+            server_summary_markdown(servers, tuple(thresholds), policy)]
 
 
 def _side_by_side(ctx: StudyContext, rows: list[dict[str, Any]], logs: dict[tuple[str, str], Path]) -> list[str]:

@@ -11,6 +11,7 @@ from synthleak.atomic_io import atomic_write_text
 from synthleak.config import StudyConfig, check_config
 from synthleak.executors import Executor, make_executor
 from synthleak.provenance import append_run
+from synthleak.schema import as_list
 from synthleak.study.attack import AttackStage
 from synthleak.study.context import Stage, StudyContext
 from synthleak.study.features import FeaturesStage
@@ -59,7 +60,8 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
     (Ctrl-C, SIGTERM), it ends its workers; what was finished is kept, and a rerun resumes."""
     forced = check_force(force)
     check_config(config, config.name)  # a config built in Python fails here, not after the renders
-    check_tiers_installed(config.localize.tiers, config.localize.profile)
+    for profile in as_list(config.localize.profile):
+        check_tiers_installed(config.localize.tiers, profile)
     paths = StudyPaths(Path(out))
     paths.root.mkdir(parents=True, exist_ok=True)
     with study_lock(paths.root):  # before any worker starts: a second run is refused at once

@@ -1,0 +1,206 @@
+"""Lens distortion and resize geometry of the capture model (:mod:`synthleak.render.capture`).
+
+The distortion is OpenCV's radial-tangential (Brown-Conrady) model, COLMAP's ``OPENCV`` camera (``FULL_OPENCV``
+with k3): a camera-frame point (x, y, 1) goes to ``x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y +
+p2 (r^2 + 2 x^2)`` (and y alike), r^2 = x^2 + y^2, then ``u = fx x_d + cx`` (Brown 1966, "Decentering
+distortion of lenses"; OpenCV ``projectPoints``). A pinhole render is turned into the distorted photo by
+resampling: each output pixel centre is undistorted (Newton on the forward model) and projected into the render.
+
+Choice (documented in docs/renderers.md): the render is not widened. The output keeps the render's size and
+principal point and takes the focal length ``s * f`` with the smallest ``s`` (rounded up to 1e-6) for which every
+output pixel samples inside the render (bilinear between render pixel centres), so the whole frame is valid:
+barrel distortion (k1 < 0) zooms in slightly (s > 1), pincushion zooms out (s < 1).
+
+Depth and instance ids of a geometric capture are ray cast again for the output camera (one ray per output pixel
+centre, :func:`raycast_camera`), so they are the exact ground truth of the distorted and resized photo, not values
+borrowed from a neighbouring render pixel.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from synthleak.core.dataset import OpenCVCamera, camera_dist_coeffs
+from synthleak.core.types import Camera
+from synthleak.errors import ConfigError
+
+NEWTON_STEPS = 12
+UNDISTORT_TOL = 1e-9
+"""Largest residual (normalised units) of :func:`undistort_normalized` before it is an error."""
+
+
+def radial_fold_radius(k1: float, k2: float, k3: float) -> float:
+    """Smallest undistorted radius r > 0 where ``r (1 + k1 r^2 + k2 r^4 + k3 r^6)`` stops increasing (its
+    derivative ``1 + 3 k1 r^2 + 5 k2 r^4 + 7 k3 r^6`` reaches 0); ``inf`` when it never does."""
+    roots = np.roots([7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0]) if (k1, k2, k3) != (0.0, 0.0, 0.0) else []
+    s = [float(r.real) for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12 and r.real > 0]
+    return math.sqrt(min(s)) if s else math.inf
+
+
+def corner_radius(camera: Camera) -> float:
+    """The largest normalised (pinhole) radius of ``camera``'s image: at its farthest corner."""
+    xs = (np.array([0.0, camera.width]) - camera.cx) / camera.fx
+    ys = (np.array([0.0, camera.height]) - camera.cy) / camera.fy
+    return float(np.sqrt((xs[:, None] ** 2 + ys[None, :] ** 2).max()))
+
+
+def check_no_fold(k1: float, k2: float, k3: float, camera: Camera, where: str) -> None:
+    """ConfigError naming ``where`` (e.g. ``capture profile phone: distortion``) when the radial map folds
+    (stops increasing) within the image's corner radius: such a lens would show the same ray twice."""
+    fold, corner = radial_fold_radius(k1, k2, k3), corner_radius(camera)
+    if fold <= corner * 1.05:
+        raise ConfigError(f"{where}.k1/k2/k3 = {k1}, {k2}, {k3}: the radial distortion folds the image at normalised "
+                          f"radius {fold:.4f}, inside the frame's corner radius {corner:.4f} (x1.05 margin)")
+
+
+def distort_normalized(x: np.ndarray, y: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's forward model on normalised coordinates (``dist``: ``[k1, k2, p1, p2, k3]``)."""
+    k1, k2, p1, p2, k3 = (float(c) for c in dist)
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    return (x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y)
+
+
+def undistort_normalized(xd: np.ndarray, yd: np.ndarray, dist: np.ndarray, strict: bool = True
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`distort_normalized` by Newton's method (elementwise float64: the same bits on any CPU);
+    a ValueError when it does not converge (``strict``), else NaN where it does not."""
+    k1, k2, p1, p2, k3 = (float(c) for c in dist)
+    x, y = xd.copy(), yd.copy()
+    for _ in range(NEWTON_STEPS):
+        fx, fy = distort_normalized(x, y, dist)
+        ex, ey = fx - xd, fy - yd
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dradial = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3))  # d radial / d (r^2) * 2
+        jxx = radial + x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+        jxy = x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+        jyx = x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+        jyy = radial + y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+        det = jxx * jyy - jxy * jyx
+        with np.errstate(all="ignore"):
+            x = x - (jyy * ex - jxy * ey) / det
+            y = y - (jxx * ey - jyx * ex) / det
+    with np.errstate(all="ignore"):
+        fx, fy = distort_normalized(x, y, dist)
+    if not strict:
+        bad = ~((np.abs(fx - xd) < UNDISTORT_TOL) & (np.abs(fy - yd) < UNDISTORT_TOL))
+        return np.where(bad, np.nan, x), np.where(bad, np.nan, y)
+    residual = float(np.max(np.abs(np.concatenate([(fx - xd).ravel(), (fy - yd).ravel()])), initial=0.0))
+    if not residual < UNDISTORT_TOL:
+        raise ValueError(f"lens distortion: undistortion did not converge (residual {residual:.2e})")
+    return x, y
+
+
+def normalized_rays(camera: Camera, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Undistorted normalised (x, y) of pixel coordinates (u, v) (pixel centres: u + 0.5); NaN where a
+    distorted camera's lens has no ray (far outside the frame, beyond the model's range)."""
+    x = (np.asarray(u, dtype=np.float64) - camera.cx) / camera.fx
+    y = (np.asarray(v, dtype=np.float64) - camera.cy) / camera.fy
+    dist = camera_dist_coeffs(camera)
+    return (x, y) if dist is None else undistort_normalized(x, y, dist, strict=False)
+
+
+def project_camera_points(camera: Camera, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Pixel coordinates of camera-frame points (z > 0) through ``camera``'s lens; ``None`` when a distorted
+    camera sees one beyond its model's monotonic range (no meaningful projection: the caller must assume
+    anywhere)."""
+    dist = camera_dist_coeffs(camera)
+    if dist is None:  # (this operation order: the bits of the pinhole projection the BOP extras always made)
+        return camera.fx * pts[:, 0] / pts[:, 2] + camera.cx, camera.fy * pts[:, 1] / pts[:, 2] + camera.cy
+    x, y = pts[:, 0] / pts[:, 2], pts[:, 1] / pts[:, 2]
+    k1, k2, _, _, k3 = (float(c) for c in dist)
+    if np.any(x * x + y * y >= (0.95 * radial_fold_radius(k1, k2, k3)) ** 2):
+        return None
+    x, y = distort_normalized(x, y, dist)
+    return camera.fx * x + camera.cx, camera.fy * y + camera.cy
+
+
+def _pixel_grid(camera: Camera, border_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel-centre coordinates (u + 0.5, v + 0.5): the whole image, row-major, or its border pixels."""
+    w, h = camera.width, camera.height
+    if not border_only:
+        u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+        return u, v
+    us, vs = np.arange(w) + 0.5, np.arange(h) + 0.5
+    u = np.concatenate([us, us, np.full(h, 0.5), np.full(h, w - 0.5)])
+    v = np.concatenate([np.full(w, 0.5), np.full(w, h - 0.5), vs, vs])
+    return u, v
+
+
+def camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Undistorted normalised (x, y) of every pixel centre of ``camera`` (H, W): its rays are (x, y, 1)."""
+    u, v = _pixel_grid(camera)
+    x, y = (u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy
+    dist = camera_dist_coeffs(camera)
+    return (x, y) if dist is None else undistort_normalized(x, y, dist)
+
+
+def sample_positions(output: Camera, render: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Where each output pixel centre lies in the pinhole ``render``, as ``cv2.remap`` maps (render pixel
+    indices: centre of pixel (i, j) at (j, i)), float32 (H, W)."""
+    x, y = camera_rays(output)
+    return ((render.fx * x + render.cx - 0.5).astype(np.float32), (render.fy * y + render.cy - 0.5).astype(np.float32))
+
+
+def distorted_camera(render: Camera, dist: np.ndarray, where: str) -> OpenCVCamera:
+    """The output camera of a distorted capture of the pinhole ``render`` (see the module docstring): same size
+    and principal point, focal length ``s * f`` with the smallest ``s`` keeping every sample inside the render."""
+    k1, k2, p1, p2, k3 = (float(c) for c in dist)
+    check_no_fold(k1, k2, k3, render, where)
+    u, v = _pixel_grid(render, border_only=True)
+    lo_u, hi_u, lo_v, hi_v = 0.5, render.width - 0.5, 0.5, render.height - 0.5
+
+    def inside(s: float) -> bool:
+        try:
+            x, y = undistort_normalized((u - render.cx) / (s * render.fx), (v - render.cy) / (s * render.fy), dist)
+        except ValueError:  # beyond the lens's range: not inside
+            return False
+        ur, vr = render.fx * x + render.cx, render.fy * y + render.cy
+        return bool(np.all((ur >= lo_u) & (ur <= hi_u) & (vr >= lo_v) & (vr <= hi_v)))
+
+    lo, hi = 0.5, 4.0
+    if not inside(hi):
+        raise ConfigError(f"{where}: no focal length keeps the distorted frame inside the render")
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if inside(mid) else (mid, hi)
+    s = math.ceil(hi * 1e6) / 1e6
+    return OpenCVCamera(render.width, render.height, render.fx * s, render.fy * s, render.cx, render.cy,
+                        k1, k2, p1, p2, k3)
+
+
+def raycast_camera(gt, camera: Camera, cam_from_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact z-depth (float32 (H, W), +inf: no hit) and instance ids (uint16) of ``camera`` (distortion included)
+    by ray casting ``gt`` (a :class:`synthleak.render.raycast.RaycastGT`) through every pixel centre; a pinhole
+    camera gives exactly ``gt.render``."""
+    if camera_dist_coeffs(camera) is None:
+        return gt.render(camera, cam_from_world)
+    x, y = camera_rays(camera)
+    dirs_cam = np.stack([x.ravel(), y.ravel(), np.ones(x.size)], axis=1)
+    pose = np.asarray(cam_from_world, dtype=np.float64)
+    rot = pose[:3, :3]
+    origin = -rot.T @ pose[:3, 3]
+    dirs = dirs_cam @ rot
+    origins = np.broadcast_to(origin, dirs.shape)
+    tri = gt._intersector.intersects_first(origins, dirs)  # RaycastGT's BVH (one ray per pixel centre)
+    hit = tri >= 0
+    depth = np.full(len(dirs), np.inf)
+    instance = np.zeros(len(dirs), dtype=np.uint16)
+    idx = tri[hit]
+    normal = gt._normal[idx]
+    with np.errstate(divide="ignore", invalid="ignore"):  # z of each direction is 1: t is the z-depth
+        t = np.einsum("ij,ij->i", normal, gt._v0[idx] - origin) / np.einsum("ij,ij->i", normal, dirs[hit])
+    bad = ~np.isfinite(t) | (t <= 0)
+    if bad.any():  # degenerate triangle or grazing ray: embree's own hit point
+        locs, ray_idx, _ = gt._intersector.intersects_location(origins[hit][bad], dirs[hit][bad], multiple_hits=False)
+        fallback = np.full(int(bad.sum()), np.inf)
+        fallback[ray_idx] = (locs - origin) @ rot[2]
+        t[bad] = fallback
+    depth[hit] = t
+    instance[hit] = gt.face_instance[idx]
+    shape = (camera.height, camera.width)
+    return depth.reshape(shape).astype(np.float32), instance.reshape(shape)
