@@ -17,7 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from synthleak.atomic_io import atomic_write_text
-from synthleak.evaluate.paper_reference import PRESENCE_RULES
+from synthleak.evaluate.paper_reference import PRESENCE_RULES, tier_ordering_markdown
+from synthleak.evaluate.server_summary import COLUMNS as SERVER_COLUMNS
 from synthleak.evaluate.shell_share import shell_share
 from synthleak.evaluate.tables import markdown_table, placement_stats, plain, precision_recall, read_results
 from synthleak.provenance import read_run_record
@@ -26,7 +27,7 @@ from synthleak.schema import as_list
 HEADLINE = (10.0, 0.25)
 """The headline thresholds (δr degrees, δt metres): the paper's strictest."""
 
-PLOTS = ("presence_pr.png", "placement_cdf.png", "defense_tradeoff.png")
+PLOTS = ("presence_pr.png", "placement_cdf.png", "defense_tradeoff.png", "utility_vs_leakage.png")
 """The study plots a page shows (those the study made), then the first room's top-down plot."""
 
 HEADLINE_COLUMNS = ("tier", "precision", "recall", "tp", "fp", "n_present", "n_absent", "placement_success",
@@ -141,6 +142,10 @@ def results_summary(study: Path, name: str | None = None) -> dict[str, Any]:
         "thresholds": [{k: _finite(v) for k, v in r.items()} for r in all_thresholds_rows(rows)],
         "genuine": genuine_rows(load("genuine_localization.json")),
         "shell": [{k: _finite(v) for k, v in r.items()} for r in shell_share(rows)],
+        "capture": {kind: config["render"].get(f"capture_{kind}", "ideal") for kind in ("map", "genuine", "attacker")},
+        "lighting": {kind: config["render"].get(f"light_{kind}", "same") for kind in ("map", "genuine", "attacker")},
+        "servers": [{k: _finite(v) for k, v in r.items()} for r in load("servers.json")],
+        "tier_ordering": tier_ordering_markdown(rows, aligner, config["attack"]["presence"]),
         "defense": [{k: v for k, v in t.items() if k != "tier"} for t in tradeoff],
         "world": [{k: _finite(v) for k, v in r.items()} for r in world.get("rooms", [])],
         "plots": [],
@@ -170,7 +175,10 @@ def render_page(summary: Mapping[str, Any]) -> str:
             {"": "made", " ": s["date"]},
             {"": "world", " ": f"{s['rooms']} rooms, {s['pairs']} (room, object) pairs; {s['renderer']} "
                                f"{s['resolution']}; tiers {', '.join(s['tiers'])}"},
+            {"": "captures", " ": ", ".join(f"{k} `{v}` (light `{s.get('lighting', {}).get(k, 'same')}`)"
+                                            for k, v in s.get("capture", {}).items()) or "ideal renders"},
         ], ["", " "]),
+        *(["## Tier ordering beside the paper's (Table 1)\n", s["tier_ordering"]] if s.get("tier_ordering") else []),
         f"## Presence and placement at {HEADLINE[0]:g}°/{HEADLINE[1]:g} m (`{s['aligner']}`, "
         f"{PRESENCE_RULES.get(s['presence'], s['presence'])})\n",
         "Precision / recall of the presence decision over (room, object) pairs; placement success: GT-present "
@@ -183,6 +191,13 @@ def render_page(summary: Mapping[str, Any]) -> str:
         "## Genuine queries (held-out frames) localized\n",
         markdown_table(s["genuine"], ["tier", "queries", "localized", "closeups", "closeups_localized"]),
     ]
+    if s.get("servers"):
+        parts += ["## Utility and leakage per server\n",
+                  "Genuine queries localized and their median error beside the attacker queries localized, presence "
+                  "P/R and placement success (first threshold pair), per server (tier, profile, map "
+                  "representation).\n",
+                  markdown_table(_none_as_nan(s["servers"]), [c for c in SERVER_COLUMNS if c in s["servers"][0]],
+                                 digits=3)]
     if s.get("shell"):
         parts += ["## Attacker queries localized on the room's shell\n",
                   "Localized attacker queries with most PnP inliers on the room's shell (chance background "
@@ -202,7 +217,8 @@ def render_page(summary: Mapping[str, Any]) -> str:
 
 
 def _copy_figures(study: Path, folder: Path) -> list[str]:
-    """Copy the page's plots and a contact sheet of the first room into ``folder``; their names."""
+    """Copy the page's plots and contact sheets of the first room and the first attacker orbit into ``folder``;
+    their names."""
     from synthleak.inspect import contact_sheet
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -211,6 +227,10 @@ def _copy_figures(study: Path, folder: Path) -> list[str]:
     if rooms:
         contact_sheet(rooms[0], folder / "contact_sheet.png", frames=3)
         names.append("contact_sheet.png")
+    attackers = sorted((study / "dataset" / "attackers").glob("*/"))
+    if attackers:  # a photographed study: its rows put each kind of capture's render beside its photo
+        contact_sheet(attackers[0], folder / "contact_sheet_attacker.png", frames=2)
+        names.append("contact_sheet_attacker.png")
     plots = study / "plots"
     topdown = sorted(plots.glob("*_topdown.png"))[:1]
     for path in [*(plots / p for p in PLOTS), *topdown]:
