@@ -69,21 +69,34 @@ def undistort_normalized(xd: np.ndarray, yd: np.ndarray, dist: np.ndarray, stric
     """Inverse of :func:`distort_normalized` by Newton's method (elementwise float64: the same bits on any CPU);
     a ValueError when it does not converge (``strict``), else NaN where it does not."""
     k1, k2, p1, p2, k3 = (float(c) for c in dist)
+    shape = np.shape(xd)
+    xd, yd = np.asarray(xd, dtype=np.float64).ravel(), np.asarray(yd, dtype=np.float64).ravel()
     x, y = xd.copy(), yd.copy()
+    active = np.arange(xd.size)
     for _ in range(NEWTON_STEPS):
-        fx, fy = distort_normalized(x, y, dist)
-        ex, ey = fx - xd, fy - yd
-        r2 = x * x + y * y
+        # each element steps on its own values only, so an element whose step moved nothing sits at its fixed point
+        # (every further step gives the same bits): it leaves the active set, and the result is bit for bit that
+        # of NEWTON_STEPS steps on every element
+        xa, ya = x[active], y[active]
+        fx, fy = distort_normalized(xa, ya, dist)
+        ex, ey = fx - xd[active], fy - yd[active]
+        r2 = xa * xa + ya * ya
         radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
         dradial = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3))  # d radial / d (r^2) * 2
-        jxx = radial + x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
-        jxy = x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
-        jyx = x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
-        jyy = radial + y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+        jxx = radial + xa * xa * dradial + 2.0 * p1 * ya + 6.0 * p2 * xa
+        jxy = xa * ya * dradial + 2.0 * p1 * xa + 2.0 * p2 * ya
+        jyx = xa * ya * dradial + 2.0 * p1 * xa + 2.0 * p2 * ya
+        jyy = radial + ya * ya * dradial + 6.0 * p1 * ya + 2.0 * p2 * xa
         det = jxx * jyy - jxy * jyx
         with np.errstate(all="ignore"):
-            x = x - (jyy * ex - jxy * ey) / det
-            y = y - (jxx * ey - jyx * ex) / det
+            xn = xa - (jyy * ex - jxy * ey) / det
+            yn = ya - (jxx * ey - jyx * ex) / det
+        x[active], y[active] = xn, yn
+        moving = ~(((xn == xa) | (np.isnan(xn) & np.isnan(xa))) & ((yn == ya) | (np.isnan(yn) & np.isnan(ya))))
+        active = active[moving]
+        if active.size == 0:
+            break
+    x, y, xd, yd = x.reshape(shape), y.reshape(shape), xd.reshape(shape), yd.reshape(shape)
     with np.errstate(all="ignore"):
         fx, fy = distort_normalized(x, y, dist)
     if not strict:
