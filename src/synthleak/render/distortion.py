@@ -72,7 +72,7 @@ def undistort_normalized(xd: np.ndarray, yd: np.ndarray, dist: np.ndarray, stric
     shape = np.shape(xd)
     xd, yd = np.asarray(xd, dtype=np.float64).ravel(), np.asarray(yd, dtype=np.float64).ravel()
     x, y = xd.copy(), yd.copy()
-    active = np.arange(xd.size)
+    active: slice | np.ndarray = slice(None)
     for _ in range(NEWTON_STEPS):
         # each element steps on its own values only, so an element whose step moved nothing sits at its fixed point
         # (every further step gives the same bits): it leaves the active set, and the result is bit for bit that
@@ -91,11 +91,16 @@ def undistort_normalized(xd: np.ndarray, yd: np.ndarray, dist: np.ndarray, stric
         with np.errstate(all="ignore"):
             xn = xa - (jyy * ex - jxy * ey) / det
             yn = ya - (jxx * ey - jyx * ex) / det
-        x[active], y[active] = xn, yn
         moving = ~(((xn == xa) | (np.isnan(xn) & np.isnan(xa))) & ((yn == ya) | (np.isnan(yn) & np.isnan(ya))))
-        active = active[moving]
-        if active.size == 0:
-            break
+        if isinstance(active, slice):
+            x, y = xn, yn
+            if moving.mean() < 0.5:  # most elements settled: step on the others only from now on
+                active = np.nonzero(moving)[0]
+        else:
+            x[active], y[active] = xn, yn
+            active = active[moving]
+            if active.size == 0:
+                break
     x, y, xd, yd = x.reshape(shape), y.reshape(shape), xd.reshape(shape), yd.reshape(shape)
     with np.errstate(all="ignore"):
         fx, fy = distort_normalized(x, y, dist)
