@@ -106,7 +106,20 @@ def test_a_broken_preset_is_listed_and_named_on_stderr(tmp_path: Path) -> None:
     broken, ci_tiny = json.loads(result.stdout)
     assert "nope" in broken["error"] and broken["renderer"] is None
     assert ci_tiny["cost"] == {"wall_s": 709.4, "cores": 2, "cpu": "Intel Xeon", "commit": "abc1234",
-                               "page": "docs/results/ci-tiny.md"}
+                               "page": "docs/results/ci-tiny.md", "config_key": "", "stale": False}
+
+
+def test_a_cost_measured_on_another_config_says_so(tmp_path: Path) -> None:
+    from synthleak.config import list_presets, load_config
+    from synthleak.provenance import config_key
+
+    index = tmp_path / "index.json"
+    entry = {"wall_s": 709.4, "cores": 2, "commit": "abc1234"}
+    index.write_text(json.dumps({"presets": {"ci-tiny": {**entry, "config_key": config_key(load_config("ci-tiny"))},
+                                             "ci-tiny-hard": {**entry, "config_key": "000000000000"}}}))
+    costs = {p.name: p.cost for p in list_presets(index) if p.cost}
+    assert str(costs["ci-tiny"]) == "11.8 min (2 cores)" and not costs["ci-tiny"].stale
+    assert str(costs["ci-tiny-hard"]) == "11.8 min (2 cores), an earlier config"
 
 
 def test_preset_costs_from_an_index(tmp_path: Path) -> None:

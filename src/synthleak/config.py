@@ -9,6 +9,7 @@ refused.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import tomllib
@@ -504,9 +505,16 @@ class PresetCost:
     commit: str = ""
     page: str = ""
     """The results page, relative to the repository root."""
+    config_key: str = ""
+    """The content key of the config the run was made with ('' in entries written before keys were recorded)."""
+    stale: bool = False
+    """The preset's config has changed since (its content key differs): the figure is of an earlier config."""
 
     def __str__(self) -> str:
-        """``11.8 min (2 cores)``."""
+        """``11.8 min (2 cores)``; ``(an earlier config)`` appended when :attr:`stale`."""
+        return self._wall() + (", an earlier config" if self.stale else "")
+
+    def _wall(self) -> str:
         if self.wall_s < 60:
             wall = f"{self.wall_s:.0f} s"
         elif self.wall_s < 7200:
@@ -559,7 +567,11 @@ def load_costs(index: Path) -> dict[str, PresetCost]:
             raise ConfigError(f"{where}.wall_s: must be a number of seconds >= 0, got {wall_s!r}")
         if cores is not None and (isinstance(cores, bool) or not isinstance(cores, int) or cores < 1):
             raise ConfigError(f"{where}.cores: must be an integer >= 1, got {cores!r}")
-        text = {k: str(entry.get(k) or "") for k in ("cpu", "commit", "page")}
+        text = {k: str(entry.get(k) or "") for k in ("cpu", "commit", "page", "config_key")}
+        if not text["config_key"] and text["page"]:  # entries before keys were recorded: the page's summary has it
+            summary = index.parent.parent.parent / Path(text["page"]).with_suffix(".json")
+            with contextlib.suppress(OSError, json.JSONDecodeError, AttributeError):
+                text["config_key"] = str(json.loads(summary.read_text()).get("config_key") or "")
         costs[name] = PresetCost(wall_s=float(wall_s), cores=cores, **text)
     return costs
 
@@ -586,6 +598,11 @@ def list_presets(index: Path | None = None, folder: Path | None = None) -> list[
                                   renderer=None, tiers=[], error=" ".join(str(exc).split())))
             continue
         common["cost"] = common["cost"] or costs.get(config.name)  # the index may name it by its `name` key
+        if common["cost"] is not None:  # a run of another config than today's: say so
+            from synthleak.provenance import config_key
+
+            key = common["cost"].config_key
+            common["cost"] = dataclasses.replace(common["cost"], stale=bool(key) and key != config_key(config))
         presets.append(Preset(**common, description=config.description, renderer=config.render.renderer,
                               tiers=list(config.localize.tiers)))
     return presets

@@ -256,6 +256,7 @@ def _update_index(index: Path, summary: Mapping[str, Any], page: str) -> None:
     data = json.loads(index.read_text()) if index.is_file() else {"presets": {}}
     data["presets"][summary["config"]] = {"wall_s": summary["wall_s"], "cpu": summary["cpu"],
                                           "cores": summary["cores"], "commit": summary["commit"],
+                                          "config_key": summary["config_key"],
                                           "page": f"docs/results/{page}"}
     data["presets"] = dict(sorted(data["presets"].items()))
     atomic_write_text(index, json.dumps(data, indent=1, ensure_ascii=False) + "\n")
