@@ -91,7 +91,7 @@ def _verdict(ours: Sequence[dict], key_r: str, suffix: str) -> str:
     group = [r for r in ours if _suffix(r["tier"]) == suffix and key_r in r]
     sift = next((r for r in group if base_tier(r["tier"]) == "sift"), None)
     learned = [r for r in group if base_tier(r["tier"]) in PAPER_ANALOGUE and base_tier(r["tier"]) != "sift"]
-    where = f" (servers `*{suffix}`)" if suffix else ""
+    where = f" (servers `*{suffix}`)" if suffix else " here"
     if not (learned and sift):
         return ""
     better = [r["tier"] for r in learned if r[key_r] > sift[key_r]]
