@@ -32,8 +32,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from synthleak.core.types import Camera
-from synthleak.localize.features import Features
-from synthleak.localize.store import MapData, MapError, read_map_meta
+from synthleak.localize.store import MapData, MapError, read_map_features, read_map_meta
 from synthleak.seeding import derive_seed
 
 LINES_FILE = "lines.npz"
@@ -105,13 +104,7 @@ def read_line_map(map_dir: Path) -> LineMapData:
     """Load a line-cloud map (``map.json``, ``features.npz``, ``lines.npz``), every array checked."""
     map_dir = Path(map_dir)
     meta, camera = read_map_meta(map_dir)
-    with np.load(map_dir / "features.npz") as data:
-        names = [str(n) for n in data["names"]]
-        binary = bool(data["binary"])
-        size = (camera.width, camera.height)
-        features = [Features(data[f"kp_{i}"], data[f"desc_{i}"], binary, image_size=size)
-                    for i in range(len(names))]
-        point_index = [data[f"p3d_{i}"] for i in range(len(names))]
+    names, features, point_index = read_map_features(map_dir, camera)
     path = map_dir / LINES_FILE
     if not path.is_file():
         raise MapError(f"{path}: missing (a line-cloud map keeps its lines there: rebuild the map)")

@@ -70,17 +70,24 @@ def read_map_meta(map_dir: Path) -> tuple[dict, Camera]:
     return meta, camera
 
 
-def read_map(map_dir: Path) -> MapData:
-    """Load ``map.json``, ``features.npz`` and ``points.npz``."""
-    map_dir = Path(map_dir)
-    meta, camera = read_map_meta(map_dir)
-    with np.load(map_dir / "features.npz") as data:
+def read_map_features(map_dir: Path, camera: Camera) -> tuple[list[str], list[Features], list[np.ndarray]]:
+    """``features.npz`` of a map (any representation): image names, each image's features, and per keypoint the
+    index of its 3D point or line (-1: none)."""
+    with np.load(Path(map_dir) / "features.npz") as data:
         names = [str(n) for n in data["names"]]
         binary = bool(data["binary"])
         size = (camera.width, camera.height)
         features = [Features(data[f"kp_{i}"], data[f"desc_{i}"], binary, image_size=size)
                     for i in range(len(names))]
         point_index = [data[f"p3d_{i}"] for i in range(len(names))]
+    return names, features, point_index
+
+
+def read_map(map_dir: Path) -> MapData:
+    """Load ``map.json``, ``features.npz`` and ``points.npz``."""
+    map_dir = Path(map_dir)
+    meta, camera = read_map_meta(map_dir)
+    names, features, point_index = read_map_features(map_dir, camera)
     with np.load(map_dir / "points.npz") as data:
         xyz, instance = data["xyz"], data["instance"]
     return MapData(meta, camera, names, features, point_index, xyz, instance)
