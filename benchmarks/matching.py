@@ -2,6 +2,7 @@
 
     python benchmarks/matching.py                       # ORB-, AKAZE- and SIFT-sized pairs, 2048 query keypoints
     python benchmarks/matching.py --query 2048 --map 900 --repeats 50
+    python benchmarks/matching.py --docs docs/scaling.md   # also writes the table into the page's block
 
 A localization matches its query against the top-k retrieved map images (40 by default), one pair each:
 this is 50-80 % of a query's CPU time. Binary descriptors match through an exact +-1 product, as int8 through
@@ -69,6 +70,7 @@ def main() -> None:
     parser.add_argument("--query", type=_positive, default=2048, help="query keypoints")
     parser.add_argument("--map", type=_positive, default=900, help="keypoints with a 3D point in the map image")
     parser.add_argument("--repeats", type=_positive, default=30)
+    parser.add_argument("--docs", metavar="PAGE", help="write the table into PAGE's block 'matching'")
     args = parser.parse_args()
     try:
         import torch
@@ -108,8 +110,13 @@ def main() -> None:
     probe_s = time.perf_counter() - start
     probe = ", ".join(f"{name} {seconds * 1e3:.3f} ms" for name, seconds in timings.items())
     source = f" (from {HAMMING_BACKEND_ENV})" if _backend_from_env() != "auto" else ""
-    console.print(f"auto -> {auto_backend()}{source}; probe ({rows_a} x {rows_b} rows of {8 * num_bytes} bits, min "
-                  f"per product, {probe_s * 1e3:.0f} ms in all): {probe}; torch needs >= {TORCH_MARGIN}x numpy's speed")
+    auto = (f"auto -> {auto_backend()}{source}; probe ({rows_a} x {rows_b} rows of {8 * num_bytes} bits, min "
+            f"per product, {probe_s * 1e3:.0f} ms in all): {probe}; torch needs >= {TORCH_MARGIN}x numpy's speed")
+    console.print(auto)
+    if args.docs:
+        from synthleak.evaluate.doc_blocks import rich_table_markdown, write_benchmark_block
+
+        write_benchmark_block(args.docs, "matching", f"{table.title}:\n\n{rich_table_markdown(table)}\n\n{auto}")
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 
     python benchmarks/render_backends.py                      # 640x480, 3 timed frames per backend
     /work/venv-blender/bin/python benchmarks/render_backends.py   # the venv where bpy also imports
+    python benchmarks/render_backends.py --docs docs/renderers.md  # also writes the table into the page's block
 
 The room: a 5 x 4 x 2.6 m shell (textured floor, walls, ceiling) and 20 boxes / cylinders (~6k triangles),
 two sphere lights and a rect light, ambient fill. Each backend renders full frames (RGB + z-depth +
@@ -14,6 +15,7 @@ vectorised ``llvm_ad_rgb`` variant, which needs libLLVM >= 16).
 from __future__ import annotations
 
 import argparse
+import builtins
 import importlib.util
 import inspect
 import os
@@ -127,7 +129,14 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=3, help="timed frames per backend (after a warm-up)")
     parser.add_argument("--spp", type=int, default=8, help="blender samples per pixel")
     parser.add_argument("--mitsuba-spp", type=int, default=16)
+    parser.add_argument("--docs", metavar="PAGE",
+                        help="write the table into PAGE's block 'render-backends-<mitsuba spp>spp'")
     args = parser.parse_args()
+    printed: list[str] = []
+
+    def print(line: str) -> None:  # noqa: A001 (the table also goes to --docs)
+        printed.append(line)
+        builtins.print(line)
 
     scene = benchmark_room()
     views = benchmark_views(args.width, args.height, args.frames + 1)
@@ -159,6 +168,11 @@ def main() -> None:
         speedup = f"{ref / per:.1f}" if ref else "-"
         print(f"{label:<32}{prep:>10.2f}{first:>12.2f}{per:>10.3f}{1.0 / per:>8.2f}{speedup:>11}")
     print(f"load average at the end: {os.getloadavg()[0]:.1f} (other jobs on the machine inflate all rows)")
+    if args.docs:
+        from synthleak.evaluate.doc_blocks import write_benchmark_block
+
+        text = "\n".join(printed[:-1])
+        write_benchmark_block(args.docs, f"render-backends-{args.mitsuba_spp}spp", f"```\n{text}\n```")
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@
     python benchmarks/server_load.py                       # synthetic box room, 320x240, sift; --workers 1 2
     python benchmarks/server_load.py --workers 0 --server-src OTHER/src   # another checkout's server, its
                                                                           # default workers (before/after)
+    python benchmarks/server_load.py --docs docs/service.md   # also writes the figures into the page's block
 
 Starts ``synthleak serve MAP [--workers N]`` as a subprocess for each worker count; clients are threads that
 each POST pre-encoded query PNGs (the held-out frames of the room) in turn. Then uploads oversized images
@@ -16,6 +17,7 @@ whether they were.
 from __future__ import annotations
 
 import argparse
+import builtins
 import contextlib
 import io
 import json
@@ -193,7 +195,13 @@ def main() -> None:
     parser.add_argument("--server-src", type=Path, help="PYTHONPATH of the server (another checkout's src)")
     parser.add_argument("--no-oversized", action="store_true", help="skip the oversized uploads")
     parser.add_argument("--no-load", action="store_true", help="skip the client load (oversized uploads only)")
+    parser.add_argument("--docs", metavar="PAGE", help="write the printed figures into PAGE's block 'server-load'")
     args = parser.parse_args()
+    printed: list[str] = []
+
+    def print(line: str) -> None:  # noqa: A001 (the figures also go to --docs)
+        printed.append(line)
+        builtins.print(line, flush=True)
     print(f"{os.cpu_count()} cores; server from {args.server_src or 'this checkout'}")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -230,6 +238,11 @@ def main() -> None:
         localized = sum(json.loads(next(iter(v))[2:]).get("success", False) for v in all_answers.values())
         print(f"answers identical for every query across runs: {all(n == 1 for n in distinct.values())} "
               f"({localized}/{len(all_answers)} queries localized)")
+    if args.docs:
+        from synthleak.evaluate.doc_blocks import write_benchmark_block
+
+        text = "\n".join(printed)
+        write_benchmark_block(args.docs, "server-load", f"```\n{text}\n```")
 
 
 if __name__ == "__main__":

@@ -297,3 +297,40 @@ def test_mesh_behind_the_camera_is_clipped_not_cast_everywhere(bop_seq) -> None:
     assert info["px_count_all"] == int(hit.sum()) > 0
     hu, hv = u[hit], v[hit]
     assert info["bbox_obj"] == [int(hu.min()), int(hv.min()), int(hu.max() - hu.min()), int(hv.max() - hv.min())]
+
+
+def test_distorted_camera_beyond_the_lens_range_is_bounded_not_cast_everywhere(bop_seq, monkeypatch) -> None:
+    """A barrel lens (k1 < 0) seeing the floor beyond its fold radius: the cast box comes from the lens image of
+    what it can see (:func:`~synthleak.render.distortion.lens_image_bounds`), smaller than the 3x enlarged
+    image, and the enlarged silhouette's counts and box equal a ray cast of every enlarged pixel; no ray lies
+    beyond the fold (where the polynomial's radius turns back)."""
+    import synthleak.render.bop_full as bop_full
+    from synthleak.core.dataset import OpenCVCamera
+    from synthleak.render.bop_full import ObjectSilhouette, _region, gt_info_for, instance_model_meshes
+    from synthleak.render.distortion import lens_image_bounds, normalized_rays, radial_fold_radius
+
+    seq_dir, scene = bop_seq
+    pinhole = Camera.from_hfov(W, H, 60.0)
+    camera = OpenCVCamera(W, H, pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy, k1=-0.3, k2=0.02)
+    entry = next(e for e in json.loads((seq_dir / "bop" / "scene_gt.json").read_text())["0"]
+                 if e["obj_id"] == FLOOR)
+    pose = make_pose(np.asarray(entry["cam_R_m2c"], float).reshape(3, 3),
+                     np.asarray(entry["cam_t_m2c"], float) / 1000.0)
+    floor = ObjectSilhouette(*instance_model_meshes(scene)[FLOOR])
+    bounded = []
+    monkeypatch.setattr(bop_full, "lens_image_bounds", lambda *a: bounded.append(1) or lens_image_bounds(*a))
+    u0, u1, v0, v1, _ = _region(camera, pose, floor.vertices, floor.faces, enlarge=True)
+    assert bounded, "the fixture's floor should reach past the lens's range"
+    assert 0 < (u1 - u0) * (v1 - v0) < 0.8 * 9 * W * H
+    u, v = (g.ravel() for g in np.meshgrid(np.arange(-W, 2 * W), np.arange(-H, 2 * H)))
+    x, y = normalized_rays(camera, u + 0.5, v + 0.5)
+    ray = np.isfinite(x)
+    assert 0 < ray.sum() < len(u) and np.all(x[ray] ** 2 + y[ray] ** 2 < radial_fold_radius(-0.3, 0.02, 0.0) ** 2)
+    hit = floor.hits(camera, pose, u, v)
+    inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
+    visible = np.zeros((H, W), bool)
+    visible[v[hit & inside], u[hit & inside]] = True  # unoccluded: every in-image hit is visible
+    info, _ = gt_info_for(camera, pose, floor, visible, visible, enlarge=True)
+    assert info["px_count_all"] == int(hit.sum()) > 0
+    hu, hv = u[hit], v[hit]
+    assert info["bbox_obj"] == [int(hu.min()), int(hv.min()), int(hu.max() - hu.min()), int(hv.max() - hv.min())]

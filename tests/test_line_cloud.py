@@ -4,6 +4,8 @@ and localization against them on a ray-cast box room (:mod:`synthleak.localize.t
 from __future__ import annotations
 
 import json
+import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,9 +22,11 @@ from synthleak.localize.line_cloud import (
     GRID,
     LINE_NOISE_FLOOR_PX,
     LineRansacOptions,
+    chance_inlier_probability,
     equivalent_line_threshold,
     estimate_pose_from_lines,
     lift_to_lines,
+    line_min_inliers,
     line_residuals_px,
     read_line_map,
 )
@@ -115,12 +119,13 @@ def test_too_few_matches_give_no_pose():
 
 
 def test_representation_is_a_registered_name_and_left_out_of_keys_at_its_default(tmp_path):
-    assert list(REPRESENTATIONS) == ["points", "line-cloud"]
+    assert list(REPRESENTATIONS)[:2] == ["points", "line-cloud"]  # (other representations may follow)
     assert LocalizeConfig().representation == "points"
     path = tmp_path / "bad.toml"
     path.write_text('name = "bad"\n[localize]\nrepresentation = "mesh"\n')
-    with pytest.raises(ConfigError, match=r"bad\.toml: localize\.representation: unknown name 'mesh' "
-                                          r"\(known: points, line-cloud\)"):
+    known = re.escape(", ".join(REPRESENTATIONS))
+    with pytest.raises(ConfigError, match=rf"bad\.toml: localize\.representation: unknown name 'mesh' "
+                                          rf"\(known: {known}\)"):
         load_config(path)
     path.write_text('extends = "ci-tiny"\n')
     assert "representation" not in config_to_dict(load_config(path))["localize"]
@@ -253,12 +258,18 @@ def test_line_map_localizes_like_the_point_map(scene, point_map, line_map):
     assert l_dist < 0.05 and l_angle < 1.0
 
 
-def test_line_server_rejects_another_room_as_the_point_server_does(line_map, point_map, tmp_path):
+@pytest.fixture(scope="module")
+def other_room(tmp_path_factory) -> Path:
+    """Eight views of another box room: every match to the fixture's maps is wrong."""
+    return ts.write_sequence(tmp_path_factory.mktemp("other") / "room_other", ts.make_room(seed=11), CAMERA,
+                             ts.walkthrough_poses(8), query_every=1)
+
+
+def test_line_server_rejects_another_room_as_the_point_server_does(line_map, point_map, other_room):
     """At the point server's 12 px a keypoint near any image line is an inlier, and a line cloud localized every
-    view of another room; at the equivalent threshold (:func:`equivalent_line_threshold`) it rejects them too."""
-    other = ts.write_sequence(tmp_path / "room_other", ts.make_room(seed=11), CAMERA, ts.walkthrough_poses(8),
-                              query_every=1)
-    seq = load_sequence(other)
+    view of another room; at the equivalent threshold (:func:`equivalent_line_threshold`) and the equivalent
+    success count (:func:`line_min_inliers`) it rejects them too."""
+    seq = load_sequence(other_room)
     points, lines = Localizer.load(point_map, POINTS), Localizer.load(line_map, LINES)
     assert equivalent_line_threshold(12.0, CAMERA) == pytest.approx(LINE_NOISE_FLOOR_PX)
     for frame in seq.frames:
@@ -266,6 +277,43 @@ def test_line_server_rejects_another_room_as_the_point_server_does(line_map, poi
         for name, loc in (("points", points), ("lines", lines)):
             result = loc.localize_features(query)
             assert not result.success, (name, frame, result.num_inliers, result.num_matches)
+
+
+def test_line_min_inliers_matches_the_point_servers_chance_rate():
+    """The chance model of :func:`line_min_inliers`: a band is likelier to catch a stray keypoint than the disc,
+    so a line server needs more inliers, more so with more matches; never fewer than the point server's."""
+    p_point = chance_inlier_probability(12.0, CAMERA, lines=False)
+    p_line = chance_inlier_probability(2.0, CAMERA, lines=True)
+    assert p_point == pytest.approx(np.pi * 144 / (320 * 240)) and p_line > 3 * p_point
+    counts = [line_min_inliers(n, 15, 12.0, 2.0, CAMERA) for n in (15, 40, 150, 900)]
+    assert counts[0] == 16  # 15 of 15 matches: the point server's chance rate is out of a line server's reach
+    assert 15 < counts[1] < counts[2] < counts[3] <= 900
+    assert line_min_inliers(10, 15, 12.0, 2.0, CAMERA) == 15  # too few matches for either server
+    # a band as selective as the disc and as many trials: 3 more, for the 3 more free inliers of a 6-line sample
+    assert line_min_inliers(150, 15, 12.0, np.pi * 12.0 ** 2 / (2 * 400.0), CAMERA, line_trials=10_000) == 18
+
+
+def test_line_server_accepts_no_more_wrong_room_views_than_the_point_server(line_map, point_map, other_room):
+    """At a success count low enough for chance inliers (the most the point server finds on a view of another
+    room, so it accepts at least one), the line server at its equivalent count (:func:`line_min_inliers`) accepts
+    at most as many of those views as the point server; at the point server's own count it would accept more:
+    a 2 px band catches more stray keypoints than a 12 px disc."""
+    seq = load_sequence(other_room)
+    points = Localizer.load(point_map, POINTS)
+    queries = [points.extractor(seq.rgb(frame)) for frame in seq.frames[:4]]
+    point_inliers = np.array([points.localize_features(q).num_inliers for q in queries])
+    low = int(point_inliers.max())
+    assert 4 <= low < points.min_inliers, point_inliers
+    lines = Localizer.load(line_map, replace(LINES, min_inliers=low))
+    results = [lines.localize_features(q) for q in queries]
+    line_inliers = np.array([r.num_inliers for r in results])
+    accepted = {"points": int(np.sum(point_inliers >= low)), "lines": sum(r.success for r in results),
+                "lines at the point count": int(np.sum(line_inliers >= low))}
+    assert accepted["points"] >= 1, accepted
+    assert accepted["lines"] <= accepted["points"], (accepted, point_inliers, line_inliers)
+    assert accepted["lines at the point count"] > accepted["points"], (accepted, point_inliers, line_inliers)
+    for r in results:  # the rule applied: the equivalent count for each view's number of matches
+        assert r.success == (r.num_inliers >= line_min_inliers(r.num_matches, low, 12.0, 2.0, CAMERA))
 
 
 def test_line_server_takes_the_query_lens(scene, line_map):

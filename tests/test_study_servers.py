@@ -48,6 +48,27 @@ def test_a_bad_profile_list_names_the_file_and_key(tmp_path: Path, value: str, m
         load_config(path)
 
 
+def test_servers_keeps_the_named_servers_of_the_span():
+    localize = LocalizeConfig(tiers=["sift", "orb", "xfeat"], profile=["strict", "hloc"],
+                              servers=["xfeat@hloc", "sift", "orb", "xfeat", "sift@hloc"])
+    assert [s.name for s in study_servers(localize)] == ["sift", "sift@hloc", "orb", "xfeat", "xfeat@hloc"]
+    assert "orb@hloc" not in server_by_name(localize)
+    assert "servers" not in config_to_dict(LocalizeConfig())  # the default leaves content keys as they were
+
+
+@pytest.mark.parametrize(("value", "message"), [
+    ('["orb@hloc"]', r"localize\.servers: 'orb@hloc' is not a server of tiers x profile x representation "
+                     r"\(known: sift, sift@hloc, xfeat, xfeat@hloc\)"),
+    ('["sift", "sift"]', r"localize\.servers: a server is named twice"),
+])
+def test_a_bad_server_list_names_the_file_and_key(tmp_path: Path, value: str, message: str):
+    path = tmp_path / "bad.toml"
+    path.write_text(f'extends = "ci-tiny"\n[localize]\ntiers = ["sift", "xfeat"]\nprofile = ["strict", "hloc"]\n'
+                    f"servers = {value}\n")
+    with pytest.raises(ConfigError, match=rf"bad\.toml: {message}"):
+        load_config(path)
+
+
 def test_a_study_runs_both_profiles_on_the_same_features(ci_tiny_study: Path, tmp_path: Path):
     """Adding ``hloc`` beside ``strict`` builds the ``sift@hloc`` maps and logs and redoes nothing of ``sift``:
     its maps, features, logs and results rows stay the same bytes, and one features folder serves both."""

@@ -258,6 +258,7 @@ class LocalizeConfig:
         "tiers": each(one_of(_tiers), nonempty=True),
         "profile": one_or_each(one_of(_profiles)),
         "representation": one_or_each(one_of(_representations)),
+        "servers": each(anything),
         "retrieval": one_of(_retrieval_methods),
         "top_k": COUNT,
         "bow_branching": at_least(2),
@@ -268,7 +269,7 @@ class LocalizeConfig:
         "pairs_per_image": COUNT,
     }
     """A rule per field, checked when the config loads."""
-    KEY_DEFAULTS: ClassVar[dict[str, Any]] = {"profile": "strict", "representation": "points"}
+    KEY_DEFAULTS: ClassVar[dict[str, Any]] = {"profile": "strict", "representation": "points", "servers": []}
     """Fields added after content keys were in use: :func:`config_to_dict` leaves them out at these values, so a
     config that does not change them keeps its keys (and its cached maps, queries and report)."""
 
@@ -281,10 +282,16 @@ class LocalizeConfig:
     (``["strict", "hloc"]``) runs a server per tier and profile on the same query features; a server under a
     profile other than ``strict`` is named ``<tier>@<profile>`` (:mod:`synthleak.localize.servers`)."""
     representation: str | list[str] = "points"
-    """What a map stores: ``points`` (3D points, PnP) or ``line-cloud`` (a random 3D line through each point, never
-    the point; Speciale et al. CVPR 2019); :data:`synthleak.localize.representations.REPRESENTATIONS`. Maps record
+    """What a map stores: ``points`` (3D points, PnP), ``line-cloud`` (a random 3D line through each point, never
+    the point; Speciale et al. CVPR 2019) or ``paired-point`` (a 3D line through each random pair of points; Lee et
+    al. CVPR 2023); :data:`synthleak.localize.representations.REPRESENTATIONS`. Maps record
     it. A list runs a server per tier and representation; one over a map other than ``points`` is named
     ``<tier>+<representation>`` (:mod:`synthleak.localize.servers`)."""
+    servers: list[str] = field(default_factory=list)
+    """The servers of ``tiers`` x ``profile`` x ``representation`` a study runs, by name (``["sift", "xfeat",
+    "sift@hloc", "xfeat@hloc"]``); empty (the default): every one. HLoc has no ORB or AKAZE configuration, and a
+    HLoc-profile server with mutual-NN matching costs several times a strict one (thousands of matches through
+    10,000 RANSAC trials), so a small study can run the paper's server for the tiers the paper ran only."""
     retrieval: str = "bow"
     """``bow`` (vocabulary-tree bag of words, then the ``top_k`` map images) or ``exhaustive`` (every map image);
     docs/retrieval.md has the measured recall against exhaustive matching and the cost per query."""
@@ -299,6 +306,20 @@ class LocalizeConfig:
     min_inliers: int = 0
     """0: the tier's own default."""
     pairs_per_image: int = 10
+
+    def check_fields(self, where: str) -> None:
+        """``servers`` names servers of this config's tiers, profiles and representations, each once."""
+        if not self.servers:
+            return
+        from synthleak.localize.servers import study_servers
+
+        known = [server.name for server in study_servers(dataclasses.replace(self, servers=[]))]
+        for name in self.servers:
+            if name not in known:
+                raise ConfigError(f"{where}servers: {name!r} is not a server of tiers x profile x representation "
+                                  f"(known: {', '.join(known)})")
+        if len(set(self.servers)) != len(self.servers):
+            raise ConfigError(f"{where}servers: a server is named twice in {self.servers!r}")
 
 
 @dataclass(frozen=True)
@@ -464,6 +485,8 @@ def check_config(config: StudyConfig, source: str = "<config>") -> StudyConfig:
     ]:
         for key, rule in cls.RULES.items():
             rule(getattr(value, key), f"{where}{key}")
+        if hasattr(value, "check_fields"):
+            value.check_fields(where)
     return config
 
 

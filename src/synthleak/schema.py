@@ -197,4 +197,6 @@ def from_table(cls: type, data: dict[str, Any], where: str) -> Any:
         raise ConfigError(f"{where}: {exc}") from exc
     for key, rule in getattr(cls, "RULES", {}).items():
         rule(getattr(built, key), f"{prefix}{key}")
+    if hasattr(built, "check_fields"):  # rules across fields
+        built.check_fields(prefix)
     return built

@@ -287,6 +287,8 @@ def presets_markdown(index: Path | None = None, folder: Path | None = None) -> s
             values = as_list(getattr(config.localize, axis))
             if len(values) > 1:
                 scale += f" x {len(values)} {axis}s"
+        if config.localize.servers:  # a subset of that span
+            scale += f", {len(config.localize.servers)} servers"
         cost = preset.cost
         wall = f"{cost}, {_short_cpu(cost.cpu)}" if cost else "not measured"
         page = f"[{Path(cost.page).name}]({cost.page})" if cost and cost.page else "–"

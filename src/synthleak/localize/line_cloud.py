@@ -11,7 +11,9 @@ and ``cam_from_world = [R | t]``.
 Solver: LO-RANSAC (seeded) over the minimal 6-line generalized relative pose solver ``p6L`` (Stewénius et al.,
 "Solutions to minimal generalized relative pose problems", OMNIVIS 2005; PoseLib's ``gen_relpose_6pt``),
 scored by the point-to-line reprojection error (pixels from the keypoint to the image of its 3D line) with a
-cheirality check, locally optimized and finally refined by ``scipy.optimize.least_squares`` on that error.
+cheirality check (all roots of a sample pre-scored at once on a fixed subset), locally optimized and finally
+refined by Levenberg-Marquardt on that error. A query is accepted at :func:`line_min_inliers`, the count at which
+chance inliers accept it as rarely as the point server's ``min_inliers`` does.
 
 On disk (``lines.npz`` of a map built with ``[localize] representation = "line-cloud"``): the Plücker coordinates
 ``directions`` (P, 3) and ``moments`` (P, 3) ``m = anchor x d`` on a 1e-9 grid (the anchor is ``d x m``), plus
@@ -28,8 +30,6 @@ from pathlib import Path
 
 import numpy as np
 import pycolmap
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
 from synthleak.core.types import Camera
 from synthleak.localize.store import MapData, MapError, read_map_features, read_map_meta
@@ -128,10 +128,10 @@ def read_line_map(map_dir: Path) -> LineMapData:
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross products of (N, 3) arrays (a broadcast (3,) too): ``np.cross`` without its overhead."""
-    a, b = np.broadcast_arrays(a, b)
-    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+    """Cross products along the last axis (broadcasting, e.g. a (3,) vector with an (N, 3) array): ``np.cross``
+    without its overhead."""
+    a0, a1, a2, b0, b1, b2 = a[..., 0], a[..., 1], a[..., 2], b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
 class LineMatches:
@@ -142,6 +142,7 @@ class LineMatches:
         self.directions = np.asarray(directions, np.float64).reshape(-1, 3)
         self.anchors = np.asarray(anchors, np.float64).reshape(-1, 3)
         self.moments = _cross(self.anchors, self.directions)
+        self.plucker = np.concatenate([self.moments, self.directions], axis=1)
         self.camera = camera
         n = len(self.keypoints)
         self.normalized = np.column_stack([(self.keypoints[:, 0] - camera.cx) / camera.fx,
@@ -159,11 +160,22 @@ class LineMatches:
         d_c = self.directions @ r.T
         return self.moments @ r.T + _cross(t, d_c), d_c  # the camera-frame moment: x^T l = 0 on the image
 
+    def _distances(self, lines: np.ndarray) -> np.ndarray:
+        norm = np.hypot(lines[..., 0] / self.camera.fx, lines[..., 1] / self.camera.fy)
+        return np.sum(lines * self.normalized, axis=-1) / np.maximum(norm, 1e-300)
+
     def residuals(self, pose: np.ndarray) -> np.ndarray:
         """Signed pixel distance from each keypoint to the image of its 3D line."""
-        lines, _ = self._image_lines(pose)
-        norm = np.hypot(lines[:, 0] / self.camera.fx, lines[:, 1] / self.camera.fy)
-        return np.sum(lines * self.normalized, axis=1) / np.maximum(norm, 1e-300)
+        return self._distances(self._image_lines(pose)[0])
+
+    def residuals_many(self, poses: np.ndarray) -> np.ndarray:
+        """(K, N) :meth:`residuals` of K poses (K, 4, 4) at once: the camera-frame line of match i under pose k is
+        ``[R_k | [t_k]_x R_k] (m_i, d_i)`` (the generalized essential matrix, Pless 2003), one matrix product."""
+        r, t = poses[:, :3, :3], poses[:, :3, 3]
+        e = _cross(t[:, None, :], r.transpose(0, 2, 1)).transpose(0, 2, 1)  # [t]_x R, column by column
+        a = np.concatenate([r, e], axis=2).reshape(-1, 6)  # (3K, 6)
+        lines = (self.plucker @ a.T).reshape(len(self), len(poses), 3).transpose(1, 0, 2)
+        return self._distances(lines)
 
     def jacobian(self, pose: np.ndarray) -> np.ndarray:
         """(N, 6) d residual / d (w, dt) for the update ``R <- exp([w]_x) R, t <- t + dt``."""
@@ -201,33 +213,72 @@ def line_residuals_px(cam_from_world: np.ndarray, keypoints: np.ndarray, directi
     return matches.residuals(cam_from_world), matches.in_front(cam_from_world)
 
 
+def _rotvec_matrix(w: np.ndarray) -> np.ndarray:
+    """``exp([w]_x)`` (Rodrigues' formula; ``Rotation.from_rotvec`` costs more than the rest of an LM step)."""
+    angle = math.sqrt(float(w @ w))
+    k = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if angle < 1e-8:
+        return np.eye(3) + k + 0.5 * k @ k
+    return np.eye(3) + (math.sin(angle) / angle) * k + ((1.0 - math.cos(angle)) / angle ** 2) * k @ k
+
+
 def _updated(pose: np.ndarray, x: np.ndarray) -> np.ndarray:
     out = np.eye(4)
-    out[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix() @ pose[:3, :3]
+    out[:3, :3] = _rotvec_matrix(x[:3]) @ pose[:3, :3]
     out[:3, 3] = pose[:3, 3] + x[3:]
     return out
 
 
+def _cost(r: np.ndarray, huber: float | None) -> float:
+    a = np.abs(r)
+    if huber is None:
+        return 0.5 * float(a @ a)
+    return float(np.sum(np.where(a <= huber, 0.5 * a * a, huber * a - 0.5 * huber * huber)))
+
+
 def refine_pose(cam_from_world: np.ndarray, matches: LineMatches, loss: str = "linear", f_scale: float = 1.0,
                 max_nfev: int | None = None) -> np.ndarray:
-    """``cam_from_world`` minimizing the point-to-line reprojection error (pixels) of ``matches``
-    (``scipy.optimize.least_squares``, analytic Jacobian; ``loss``/``f_scale`` as there)."""
-    sol = least_squares(lambda x: matches.residuals(_updated(cam_from_world, x)), np.zeros(6),
-                        jac=lambda x: matches.jacobian(_updated(cam_from_world, x)), loss=loss, f_scale=f_scale,
-                        max_nfev=max_nfev, method="trf" if loss != "linear" else "lm")
-    return _updated(cam_from_world, sol.x)
+    """``cam_from_world`` minimizing the point-to-line reprojection error (pixels) of ``matches``: Levenberg-
+    Marquardt on the analytic Jacobian, ``loss`` ``"linear"`` or ``"huber"`` (iteratively reweighted, the kink at
+    ``f_scale`` px), at most ``max_nfev`` steps (default 50). Six parameters: this loop costs about a quarter of
+    what ``scipy.optimize.least_squares`` did per call (its overhead was most of it; cProfile on the benchmark)."""
+    if loss not in ("linear", "huber"):
+        raise ValueError(f"loss {loss!r}: 'linear' or 'huber'")
+    huber = float(f_scale) if loss == "huber" else None
+    pose, r = cam_from_world, matches.residuals(cam_from_world)
+    cost, damping = _cost(r, huber), 1e-4
+    for _ in range(max_nfev or 50):
+        jac = matches.jacobian(pose)
+        w = np.ones_like(r) if huber is None else np.minimum(1.0, huber / np.maximum(np.abs(r), 1e-300))
+        jw = jac * w[:, None]
+        hess, grad = jac.T @ jw, jw.T @ r
+        while damping < 1e10:
+            step = -np.linalg.solve(hess + damping * np.diag(np.diag(hess) + 1e-12), grad)
+            cand = _updated(pose, step)
+            r_cand = matches.residuals(cand)
+            cost_cand = _cost(r_cand, huber)
+            if cost_cand <= cost:
+                pose, r, damping = cand, r_cand, max(damping / 10.0, 1e-12)
+                break
+            damping *= 10.0
+        else:
+            break  # no step lowers the cost: a minimum
+        converged = cost - cost_cand <= 1e-10 * cost or np.abs(step).max() < 1e-12
+        cost = cost_cand
+        if converged:
+            break
+    return pose
 
 
-def minimal_poses(bearings: np.ndarray, directions: np.ndarray, anchors: np.ndarray) -> list[np.ndarray]:
-    """The ``cam_from_world`` poses (4x4) of the p6L solver on 6 (unit bearing, line) matches."""
+def minimal_poses(bearings: np.ndarray, directions: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+    """The ``cam_from_world`` poses (K, 4, 4) of the p6L solver on 6 (unit bearing, line) matches."""
     import poselib
 
     origins = anchors - LINE_ORIGIN_OFFSET_M * directions
-    poses = []
-    for s in poselib.gen_relpose_6pt(origins, directions, np.zeros_like(bearings), bearings):
-        pose = np.eye(4)
+    sols = poselib.gen_relpose_6pt(origins, directions, np.zeros_like(bearings), bearings)
+    poses = np.tile(np.eye(4), (len(sols), 1, 1))
+    for pose, s in zip(poses, sols, strict=True):
         pose[:3, :3], pose[:3, 3] = s.R, s.t  # PoseLib: X_2 = R X_1 + t, here X_cam = R X_world + t
-        poses.append(pose)
     return poses
 
 
@@ -240,24 +291,92 @@ def equivalent_line_threshold(point_max_error_px: float, camera: Camera) -> floa
     as often as it is under the point server's ``point_max_error_px``: a disc of radius r (area pi r^2) against a
     band of half-width r' along an image line as long as the image diagonal d (area 2 r' d), so
     r' = pi r^2 / (2 d); never under :data:`LINE_NOISE_FLOOR_PX`. With 12 px at 480x360 that is 0.38 px, so the
-    floor: 2 px. At the point server's own threshold a line cloud accepts queries of another room (measured:
-    21-30 chance inliers on 8 wrong-room views, against 8-9 for points; ``tests/test_line_cloud.py``)."""
+    floor: 2 px, where a band is still several times the disc; :func:`line_min_inliers` makes up the rest."""
     diagonal = math.hypot(camera.width, camera.height)
     return max(LINE_NOISE_FLOOR_PX, math.pi * point_max_error_px ** 2 / (2.0 * diagonal))
 
 
+# ---------------------------------------------------------------- the success rule
+
+POINT_SAMPLE_SIZE = 3
+"""P3P's minimal sample: a point hypothesis has these inliers for free."""
+POINT_RANSAC_TRIALS = 10_000
+"""``pycolmap.AbsolutePoseEstimationOptions().ransac.max_num_trials``: the point server's hypotheses on a query
+without consensus (where a false accept happens)."""
+
+
+def chance_inlier_probability(max_error_px: float, camera: Camera, lines: bool) -> float:
+    """Chance that a keypoint falling uniformly in the image is an inlier of a wrong hypothesis: a disc of radius
+    ``max_error_px`` around its predicted point (points), or a band of that half-width along its predicted image
+    line, taken as long as the image diagonal (lines; an upper bound)."""
+    area = float(camera.width * camera.height)
+    if lines:
+        return min(1.0, 2.0 * max_error_px * math.hypot(camera.width, camera.height) / area)
+    return min(1.0, math.pi * max_error_px ** 2 / area)
+
+
+def line_min_inliers(num_matches: int, point_min_inliers: int, point_max_error_px: float, line_max_error_px: float,
+                     camera: Camera, point_trials: int = POINT_RANSAC_TRIALS, line_trials: int | None = None) -> int:
+    """The fewest inliers a line server must find among ``num_matches`` to accept a query as often by chance as the
+    point server does with ``point_min_inliers`` at ``point_max_error_px`` on the same number of matches.
+
+    Chance model: on a query with no true pose, a hypothesis fitted to a minimal sample of s matches (P3P: 3,
+    p6L: 6) has those s as inliers and each other match is a chance inlier with probability p
+    (:func:`chance_inlier_probability`), so its inlier count is ``s + Binomial(n - s, p)``. A server trying T
+    hypotheses (its RANSAC trial cap, where a query without consensus ends: ``point_trials``, ``line_trials``,
+    default ``LineRansacOptions.max_trials``) accepts it by chance with probability ``1 - (1 - q)^T``,
+    ``q = P(s + Binomial(n - s, p) >= k)``. Returned:
+    the smallest k, at least ``point_min_inliers``, at which the line server's is at most the point server's
+    (``num_matches + 1`` where none is: never accept). Compared as ``T log(1 - q)`` (exact where the probability
+    is near 1), or as the union bound ``T q`` where both are tiny. At 320x240 and 150 matches, 12 px against
+    2 px: 25 for the point server's 15."""
+    from scipy.stats import binom
+
+    n, k_point = int(num_matches), int(point_min_inliers)
+    if n < k_point:
+        return k_point
+    line_trials = LineRansacOptions.max_trials if line_trials is None else int(line_trials)
+    p_point = chance_inlier_probability(point_max_error_px, camera, lines=False)
+    p_line = chance_inlier_probability(line_max_error_px, camera, lines=True)
+    j_point, ks = k_point - POINT_SAMPLE_SIZE - 1, np.arange(k_point, n + 1)
+    j_line = ks - SAMPLE_SIZE - 1  # P(s + B >= k) = P(B > k - s - 1)
+    keep_point = point_trials * binom.logcdf(j_point, n - POINT_SAMPLE_SIZE, p_point)  # log P(no false accept)
+    keep_line = line_trials * binom.logcdf(j_line, n - SAMPLE_SIZE, p_line)
+    union_point = math.log(point_trials) + binom.logsf(j_point, n - POINT_SAMPLE_SIZE, p_point)
+    union_line = math.log(line_trials) + binom.logsf(j_line, n - SAMPLE_SIZE, p_line)
+    tiny = (keep_line > -1e-9) & (keep_point > -1e-9)
+    ok = np.nonzero(np.where(tiny, union_line <= union_point, keep_line >= keep_point))[0]
+    return int(ks[ok[0]]) if len(ok) else n + 1
+
+
+# ---------------------------------------------------------------- the solver
+
+
 @dataclass(frozen=True)
 class LineRansacOptions:
-    """LO-RANSAC settings. ``confidence`` and the trial bounds are lower than pycolmap's PnP defaults
-    (0.99999, 100..10000): a p6L sample costs about 1 ms (P3P: microseconds)."""
+    """LO-RANSAC settings. ``confidence`` (the textbook 0.99, Hartley & Zisserman 4.7.1) and the trial bounds are
+    lower than pycolmap's PnP defaults (0.99999, 100..10000): a p6L sample costs about 1 ms (P3P: microseconds),
+    and LO refits the first all-inlier sample to the whole consensus."""
 
     max_error_px: float = 12.0
-    confidence: float = 0.9999
-    min_trials: int = 20
+    confidence: float = 0.99
+    min_trials: int = 3
     max_trials: int = 2000
     local_optimization: bool = True
     lo_max_matches: int = 200
     """LO refits a seeded subset of at most this many inliers (the final refinement uses all)."""
+    min_inliers: int = 0
+    """The caller's success count (0: none). RANSAC stops once a model with as many inliers would have been found
+    with ``confidence`` had it existed: a query the caller would reject needs no more trials."""
+
+
+def _trials_needed(count: int, n: int, confidence: float) -> int:
+    """Trials after which a sample of ``count`` inliers among ``n`` was drawn with ``confidence``."""
+    w = min(count / n, 1.0)
+    if w <= 0.0:
+        return 2 ** 62
+    miss = 1.0 - w ** SAMPLE_SIZE
+    return 1 if miss <= 0.0 else int(np.ceil(np.log(1.0 - confidence) / np.log(max(miss, 1e-300))))
 
 
 def estimate_pose_from_lines(keypoints: np.ndarray, directions: np.ndarray, anchors: np.ndarray,
@@ -267,7 +386,10 @@ def estimate_pose_from_lines(keypoints: np.ndarray, directions: np.ndarray, anch
 
     Returns what ``pycolmap.estimate_and_refine_absolute_pose`` returns for points: ``{"cam_from_world":
     pycolmap.Rigid3d, "inlier_mask": (N,) bool, "num_inliers": int}`` (+ ``num_trials``; inliers: point-to-line
-    error under ``max_error_px`` and in front of the camera). ``seed`` seeds the sampling."""
+    error under ``max_error_px`` and in front of the camera). ``seed`` seeds the sampling.
+
+    Per sample, all p6L roots are pre-scored at once on a fixed subset of :data:`PRETEST_MATCHES` matches
+    (:meth:`LineMatches.residuals_many`); only a root within half the best inlier share there is scored on all."""
     options = options or LineRansacOptions()
     matches = LineMatches(keypoints, directions, anchors, camera)
     n, thr = len(matches), float(options.max_error_px)
@@ -276,14 +398,19 @@ def estimate_pose_from_lines(keypoints: np.ndarray, directions: np.ndarray, anch
     rng = np.random.default_rng(seed)
     probe = matches.subset(np.sort(rng.choice(n, min(n, PRETEST_MATCHES), replace=False)))
     best_pose, best_mask, best_count = None, np.zeros(n, bool), 0
-    trials, needed = 0, options.max_trials
+    trials = 0
+    needed = _trials_needed(options.min_inliers, n, options.confidence)
     while trials < max(needed, options.min_trials) and trials < options.max_trials:
         trials += 1
         sample = rng.choice(n, SAMPLE_SIZE, replace=False)
-        for pose in minimal_poses(matches.bearings[sample], matches.directions[sample], matches.anchors[sample]):
-            # pre-test on a fixed subset (most of p6L's up to 64 roots are far off): skip a clearly worse pose
-            if best_count and (np.abs(probe.residuals(pose)) < thr).mean() < 0.5 * best_count / n:
-                continue
+        poses = minimal_poses(matches.bearings[sample], matches.directions[sample], matches.anchors[sample])
+        if not len(poses):
+            continue
+        probe_counts = (np.abs(probe.residuals_many(poses)) < thr).sum(axis=1)
+        for k in np.argsort(-probe_counts, kind="stable"):
+            if best_count and probe_counts[k] < 0.5 * best_count / n * len(probe):
+                break  # this root and the ones after it are clearly worse than the best
+            pose = poses[k]
             mask = matches.inliers(pose, thr)
             count = int(mask.sum())
             if count <= best_count:
@@ -297,8 +424,7 @@ def estimate_pose_from_lines(keypoints: np.ndarray, directions: np.ndarray, anch
                 if lo_mask.sum() > count:
                     pose, mask, count = lo, lo_mask, int(lo_mask.sum())
             best_pose, best_mask, best_count = pose, mask, count
-            w = count / n
-            needed = int(np.ceil(np.log(1 - options.confidence) / np.log(max(1 - w ** SAMPLE_SIZE, 1e-12))))
+            needed = _trials_needed(max(count, options.min_inliers), n, options.confidence)
     if best_pose is None or best_count < SAMPLE_SIZE:
         return None
     pose, mask = best_pose, best_mask

@@ -186,7 +186,7 @@ class Localizer:
 
     def pose_from_matches(self, query: Features, corr: np.ndarray, camera: Camera) -> LocalizationResult:
         """RANSAC PnP on 2D-3D matches (``min_inliers``, ``max_error_px``), inlier instance counts, defense."""
-        if len(corr) < max(self.min_inliers, 4):
+        if len(corr) < max(self.min_inliers, 3):  # P3P: 3 matches (COLMAP, HLoc)
             return LocalizationResult(False, num_matches=len(corr))
         model, params = colmap_camera_model(camera)  # PINHOLE, or OPENCV with the query's lens distortion
         cam = pycolmap.Camera(model=model, width=camera.width, height=camera.height, params=params)
@@ -194,18 +194,22 @@ class Localizer:
         options.ransac.max_error = float(self.max_error_px)
         options.ransac.random_seed = RANSAC_SEED
         lines = getattr(self.data, "lines", None)
+        min_inliers = self.min_inliers
         if lines is not None:  # a line-cloud map (Speciale et al. 2019): the same result, from 2D-3D-line matches
             from synthleak.localize.line_cloud import (
                 LineRansacOptions,
                 equivalent_line_threshold,
                 estimate_pose_from_lines,
+                line_min_inliers,
             )
 
             threshold = equivalent_line_threshold(float(self.max_error_px), camera)  # as many chance inliers
             keypoints, pinhole = undistorted_keypoints(query.keypoints[corr[:, 0]], camera)
+            # as rarely accepted by chance as the point server's min_inliers at max_error_px on as many matches
+            min_inliers = line_min_inliers(len(corr), self.min_inliers, float(self.max_error_px), threshold, pinhole)
             est = estimate_pose_from_lines(
                 keypoints, lines.directions[corr[:, 1]], lines.anchors[corr[:, 1]], pinhole,
-                LineRansacOptions(max_error_px=threshold), seed=RANSAC_SEED)
+                LineRansacOptions(max_error_px=threshold, min_inliers=min_inliers), seed=RANSAC_SEED)
         else:
             est = pycolmap.estimate_and_refine_absolute_pose(
                 query.keypoints[corr[:, 0]], self.data.xyz[corr[:, 1]], cam, options
@@ -219,7 +223,7 @@ class Localizer:
         num_inliers = len(first)
         pose = np.eye(4)
         pose[:3] = est["cam_from_world"].matrix()
-        success = num_inliers >= self.min_inliers
+        success = num_inliers >= min_inliers
         decision = self.defense.apply(counts_sorted) if success else None
         withheld = None
         if decision is not None:

@@ -151,11 +151,12 @@ def build_map(
             point_index[img][kp] = pid
 
     if out_dir.exists():
-        for name in ("sfm", "map.json", IMAGE_INSTANCES_FILE, "points.npz", "points_instance.json", "lines.npz"):
+        for name in ("sfm", "map.json", IMAGE_INSTANCES_FILE, "points.npz", "points_instance.json", "lines.npz",
+                     "paired_lines.npz"):
             target = out_dir / name
             shutil.rmtree(target) if target.is_dir() else target.unlink(missing_ok=True)
     out_dir.mkdir(parents=True, exist_ok=True)
-    lines = config.representation == "line-cloud"  # no points, and no GT-posed COLMAP model to re-triangulate
+    lines = config.representation in ("line-cloud", "paired-point")  # no points, no GT-posed COLMAP model
     colmap_ids = list(range(len(points))) if lines else _write_colmap(out_dir / "sfm", seq, names, poses, features,
                                                                       points)
     arrays = {"names": np.array(names), "binary": np.array(features[0].binary if features else False)}
@@ -166,8 +167,14 @@ def build_map(
     if lines:  # Speciale et al. CVPR 2019: a random line through each point, the point never written
         from synthleak.localize.line_cloud import lift_seed, lift_to_lines, write_lines
 
-        write_lines(out_dir / "lines.npz", *lift_to_lines(xyz, lift_seed(tier, digest)), instance,
-                    np.array([len(p.track) for p in points]))
+        if config.representation == "paired-point":  # Lee et al. CVPR 2023: a line through each pair of points
+            from synthleak.localize.paired_points import lift_pairs, pair_seed, write_paired_lines
+
+            write_paired_lines(out_dir / "paired_lines.npz", lift_pairs(xyz, pair_seed(tier, digest)), instance,
+                               np.array([len(p.track) for p in points]))
+        else:
+            write_lines(out_dir / "lines.npz", *lift_to_lines(xyz, lift_seed(tier, digest)), instance,
+                        np.array([len(p.track) for p in points]))
     else:
         np.savez(out_dir / "points.npz", xyz=xyz, instance=instance, colmap_id=np.array(colmap_ids, np.int64),
                  error=np.array([p.error_px for p in points]),

@@ -3,7 +3,10 @@
 * ``points``: the triangulated 3D points (``points.npz``, the COLMAP model in ``sfm/``), localized by RANSAC PnP;
 * ``line-cloud``: each 3D point replaced by a 3D line through it with a uniformly random direction, the points
   never stored (Speciale et al., "Privacy Preserving Image-Based Localization", CVPR 2019), localized as a
-  generalized relative pose problem (:mod:`synthleak.localize.line_cloud`).
+  generalized relative pose problem (:mod:`synthleak.localize.line_cloud`);
+* ``paired-point``: the points split into seeded random pairs, each pair replaced by the 3D line through both
+  (Lee et al., "Paired-Point Lifting for Enhanced Privacy-Preserving Visual Localization", CVPR 2023), localized
+  as a line cloud (:mod:`synthleak.localize.paired_points`).
 
 Kept free of imports (the map store is imported when a map is read): the config validation reads
 :func:`representation_names`.
@@ -23,6 +26,8 @@ REPRESENTATIONS: dict[str, str] = {
     "points": "3D points + descriptors; RANSAC PnP (pycolmap)",
     "line-cloud": "random 3D lines through the points + descriptors (Speciale et al. CVPR 2019); RANSAC "
                   "generalized relative pose (p6L, PoseLib) + point-to-line refinement",
+    "paired-point": "a 3D line through each random pair of points + both points' descriptors (Lee et al. CVPR "
+                    "2023); solved as a line cloud",
 }
 """The registered representations by name, with what each stores and solves, in words."""
 
@@ -57,4 +62,8 @@ def read_represented_map(map_dir: Path, representation: str | list[str]) -> MapD
         from synthleak.localize.line_cloud import read_line_map
 
         return read_line_map(map_dir)
+    if built == "paired-point":
+        from synthleak.localize.paired_points import read_paired_point_map
+
+        return read_paired_point_map(map_dir)
     return read_map(map_dir)

@@ -1,11 +1,11 @@
 """The study's localization servers: one per (feature tier, server profile, map representation).
 
-``[localize] tiers`` x ``profile`` x ``representation`` (each of the last two a name or a list of names) span
-the servers a study attacks. A server is named after its tier, with ``@<profile>`` when its profile is not
-``strict`` and ``+<representation>`` when its map is not plain ``points``: ``sift``, ``xfeat@hloc``,
-``sift+line-cloud``, ``xfeat@hloc+line-cloud``. The name is the ``tier`` field of every query log and results
-row, and the folder of its maps and logs. Servers of one tier share that tier's query features (a profile sets
-only matching and PnP, a representation only what the map stores).
+``[localize] tiers`` x ``profile`` x ``representation`` (each of the last two a name or a list of names) span the
+servers a study attacks (``[localize] servers``, when set, keeps only the ones it names). A server is named after
+its tier, with ``@<profile>`` when its profile is not ``strict`` and ``+<representation>`` when its map is not
+plain ``points``: ``sift``, ``xfeat@hloc``, ``sift+line-cloud``, ``xfeat@hloc+line-cloud``. The name is the
+``tier`` field of every query log and results row, and the folder of its maps and logs. Servers of one tier share
+that tier's query features (a profile sets only matching and PnP, a representation only what the map stores).
 """
 
 from __future__ import annotations
@@ -44,11 +44,14 @@ class Server:
 
 
 def study_servers(localize: Any) -> list[Server]:
-    """The servers ``localize`` spans: tiers in config order, then profiles, then representations."""
+    """The servers ``localize`` spans: tiers in config order, then profiles, then representations; only those
+    ``[localize] servers`` names when it names any."""
     profiles = as_list(localize.profile)
     representations = as_list(localize.representation)
-    return [Server(tier, profile, representation)
-            for tier in localize.tiers for profile in profiles for representation in representations]
+    servers = [Server(tier, profile, representation)
+               for tier in localize.tiers for profile in profiles for representation in representations]
+    chosen = getattr(localize, "servers", None)
+    return [server for server in servers if server.name in chosen] if chosen else servers
 
 
 def server_by_name(localize: Any) -> dict[str, Server]:

@@ -34,7 +34,7 @@ from synthleak.core.types import Camera, RenderScene
 from synthleak.geometry.poses import invert, make_pose, transform_points
 from synthleak.portable import snap
 from synthleak.render.dataset import atomic_write_json
-from synthleak.render.distortion import normalized_rays, project_camera_points
+from synthleak.render.distortion import lens_image_bounds, normalized_rays, project_camera_points
 
 ENLARGE = 3
 """Silhouettes for ``px_count_all`` / ``bbox_obj`` are counted in an image ENLARGE times as wide and high."""
@@ -123,8 +123,8 @@ def _region(camera: Camera, cam_from_model: np.ndarray, vertices: np.ndarray, fa
         s = (NEAR - a[:, 2]) / (b[:, 2] - a[:, 2])
         used = np.concatenate([used, a + s[:, None] * (b - a)])
     projected = project_camera_points(camera, used)
-    if projected is None:  # a distorted camera sees the mesh beyond its lens model's range: cast it all
-        return lo_u, hi_u, lo_v, hi_v, z_far
+    if projected is None:  # a distorted camera sees the mesh beyond its lens model's range: bound what it can see
+        projected = lens_image_bounds(camera, used)
     # a distorting lens bends the edges between the vertices: a margin of 2 % of the frame
     pad = 0 if camera_dist_coeffs(camera) is None else int(np.ceil(0.02 * max(w, h)))
     u = np.clip(projected[0], -4.0 * w, 5.0 * w)

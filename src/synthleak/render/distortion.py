@@ -115,11 +115,21 @@ def undistort_normalized(xd: np.ndarray, yd: np.ndarray, dist: np.ndarray, stric
 
 def normalized_rays(camera: Camera, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Undistorted normalised (x, y) of pixel coordinates (u, v) (pixel centres: u + 0.5); NaN where a
-    distorted camera's lens has no ray (far outside the frame, beyond the model's range)."""
+    distorted camera's lens has no ray: far outside the frame, where the undistortion finds no solution or only
+    one beyond the radial fold radius (past it the model's radius turns back and may rise again, so a pixel there
+    would see a second, wider ring of the world: not a lens, an artefact of the polynomial)."""
     x = (np.asarray(u, dtype=np.float64) - camera.cx) / camera.fx
     y = (np.asarray(v, dtype=np.float64) - camera.cy) / camera.fy
     dist = camera_dist_coeffs(camera)
-    return (x, y) if dist is None else undistort_normalized(x, y, dist, strict=False)
+    if dist is None:
+        return x, y
+    x, y = undistort_normalized(x, y, dist, strict=False)
+    fold = radial_fold_radius(float(dist[0]), float(dist[1]), float(dist[4]))
+    if math.isfinite(fold):
+        with np.errstate(invalid="ignore"):
+            beyond = x * x + y * y >= fold * fold
+        x, y = np.where(beyond, np.nan, x), np.where(beyond, np.nan, y)
+    return x, y
 
 
 def project_camera_points(camera: Camera, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -135,6 +145,34 @@ def project_camera_points(camera: Camera, pts: np.ndarray) -> tuple[np.ndarray, 
         return None
     x, y = distort_normalized(x, y, dist)
     return camera.fx * x + camera.cx, camera.fy * y + camera.cy
+
+
+def lens_image_bounds(camera: Camera, pts: np.ndarray, samples: int = 64) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel points whose box bounds every pixel whose ray passes through the normalised box of camera-frame
+    points ``pts`` (z > 0), for a distorted camera that sees some of them beyond its range (where
+    :func:`project_camera_points` has no answer). No pixel's ray lies beyond the radial fold radius, and within
+    it the lens maps a region's boundary onto its image's boundary, so the box's edges, pulled radially onto the
+    fold circle where they cross it, and the circle's arc inside the box are sampled and distorted; a caller
+    pads the box for the bending between samples, as it does for projected vertices."""
+    dist = camera_dist_coeffs(camera)
+    k1, k2, _, _, k3 = (float(c) for c in dist)
+    fold = radial_fold_radius(k1, k2, k3)
+    x, y = pts[:, 0] / pts[:, 2], pts[:, 1] / pts[:, 2]
+    lim = fold if math.isfinite(fold) else float(np.max(np.abs(np.concatenate([x, y]))))
+    x0, x1 = float(np.clip(x.min(), -lim, lim)), float(np.clip(x.max(), -lim, lim))
+    y0, y1 = float(np.clip(y.min(), -lim, lim)), float(np.clip(y.max(), -lim, lim))
+    t = np.linspace(0.0, 1.0, samples)
+    bx = np.concatenate([x0 + t * (x1 - x0), x0 + t * (x1 - x0), np.full(samples, x0), np.full(samples, x1)])
+    by = np.concatenate([np.full(samples, y0), np.full(samples, y1), y0 + t * (y1 - y0), y0 + t * (y1 - y0)])
+    if math.isfinite(fold):
+        r = np.hypot(bx, by)
+        scale = np.where(r > fold, fold / np.maximum(r, 1e-300), 1.0)
+        a = np.linspace(0.0, 2.0 * np.pi, 4 * samples, endpoint=False)
+        ax, ay = fold * np.cos(a), fold * np.sin(a)
+        arc = (ax >= x0) & (ax <= x1) & (ay >= y0) & (ay <= y1)
+        bx, by = np.concatenate([bx * scale, ax[arc]]), np.concatenate([by * scale, ay[arc]])
+    xd, yd = distort_normalized(bx, by, dist)
+    return camera.fx * xd + camera.cx, camera.fy * yd + camera.cy
 
 
 def _pixel_grid(camera: Camera, border_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
