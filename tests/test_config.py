@@ -17,7 +17,9 @@ def test_shipped_configs_load(name):
 def test_extends_merges_and_child_wins():
     small, preset = load_config("study-small"), load_config("study")
     assert small.scenes.rooms == 3 and preset.scenes.rooms == 2
-    assert small.localize == preset.localize  # inherited untouched
+    assert small.localize.tiers == preset.localize.tiers  # inherited untouched ...
+    assert (small.localize.top_k, preset.localize.top_k) == (20, 40)  # ... where the child does not set it
+    assert small.localize.servers and not preset.localize.servers
 
 
 def test_unknown_key_names_file_and_key(tmp_path):
