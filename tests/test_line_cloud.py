@@ -239,23 +239,30 @@ def test_servers_refuse_a_map_of_another_representation(point_map, line_map):
         Localizer.load(point_map, LINES)
 
 
-def test_line_map_localizes_like_the_point_map(scene, point_map, line_map):
+def assert_localizes_like_the_point_map(scene: Path, point_map: Path, other_map: Path,
+                                        other: LocalizeConfig) -> None:
+    """Every genuine query of ``scene`` localizes on both maps (inlier counts summing to the inliers), the other
+    map's median pose errors within 3x the point map's (2 cm, 0.3° floors) and under 5 cm, 1°."""
     seq = load_sequence(scene)
-    points, lines = Localizer.load(point_map, POINTS), Localizer.load(line_map, LINES)
-    errors: dict[str, list[tuple[float, float]]] = {"points": [], "lines": []}
+    servers = {"points": Localizer.load(point_map, POINTS), "other": Localizer.load(other_map, other)}
+    errors: dict[str, list[tuple[float, float]]] = {"points": [], "other": []}
     for frame in seq.query_frames:
-        query = points.extractor(seq.rgb(frame))
+        query = servers["points"].extractor(seq.rgb(frame))
         gt = seq.cam_from_world[frame]
-        for name, loc in (("points", points), ("lines", lines)):
+        for name, loc in servers.items():
             result = loc.localize_features(query)
             assert result.success, (name, frame, result.num_inliers, result.num_matches)
             assert result.num_inliers >= loc.min_inliers
             assert sum(result.inlier_instance_counts.values()) == result.num_inliers
             errors[name].append(pose_errors(result.cam_from_world, gt))
     p_dist, p_angle = np.median(np.array(errors["points"]), axis=0)
-    l_dist, l_angle = np.median(np.array(errors["lines"]), axis=0)
+    l_dist, l_angle = np.median(np.array(errors["other"]), axis=0)
     assert l_dist < max(3 * p_dist, 0.02) and l_angle < max(3 * p_angle, 0.3), (l_dist, l_angle, p_dist, p_angle)
     assert l_dist < 0.05 and l_angle < 1.0
+
+
+def test_line_map_localizes_like_the_point_map(scene, point_map, line_map):
+    assert_localizes_like_the_point_map(scene, point_map, line_map, LINES)
 
 
 @pytest.fixture(scope="module")

@@ -27,7 +27,7 @@ from synthleak.localize.paired_points import (
 from synthleak.localize.representations import REPRESENTATIONS
 from synthleak.localize.store import MapError
 from synthleak.seeding import derive_seed
-from test_line_cloud import CAMERA, POINTS, leaked_fraction, pose_errors
+from test_line_cloud import CAMERA, POINTS, assert_localizes_like_the_point_map, leaked_fraction
 
 PAIRED = LocalizeConfig(max_keypoints=1024, pairs_per_image=6, representation="paired-point")
 LINES = LocalizeConfig(max_keypoints=1024, pairs_per_image=6, representation="line-cloud")
@@ -151,21 +151,7 @@ def test_servers_refuse_a_map_of_another_representation_paired(point_map, paired
 
 
 def test_paired_map_localizes_like_the_point_map(scene, point_map, paired_map):
-    seq = load_sequence(scene)
-    points, paired = Localizer.load(point_map, POINTS), Localizer.load(paired_map, PAIRED)
-    errors: dict[str, list[tuple[float, float]]] = {"points": [], "paired": []}
-    for frame in seq.query_frames:
-        query = points.extractor(seq.rgb(frame))
-        gt = seq.cam_from_world[frame]
-        for name, loc in (("points", points), ("paired", paired)):
-            result = loc.localize_features(query)
-            assert result.success, (name, frame, result.num_inliers, result.num_matches)
-            assert sum(result.inlier_instance_counts.values()) == result.num_inliers
-            errors[name].append(pose_errors(result.cam_from_world, gt))
-    p_dist, p_angle = np.median(np.array(errors["points"]), axis=0)
-    l_dist, l_angle = np.median(np.array(errors["paired"]), axis=0)
-    assert l_dist < max(3 * p_dist, 0.02) and l_angle < max(3 * p_angle, 0.3), (l_dist, l_angle, p_dist, p_angle)
-    assert l_dist < 0.05 and l_angle < 1.0
+    assert_localizes_like_the_point_map(scene, point_map, paired_map, PAIRED)
 
 
 def test_the_two_points_of_a_line_keep_their_own_instance_in_the_counts(scene, paired_map, tmp_path):

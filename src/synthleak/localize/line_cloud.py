@@ -28,6 +28,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pycolmap
 
@@ -56,7 +57,7 @@ def lift_seed(tier: str, inputs_sha256: str) -> int:
     return derive_seed(LIFT_ROOT_SEED, LIFT_SEED_KEY, tier, inputs_sha256)
 
 
-def _on_grid(a: np.ndarray) -> np.ndarray:
+def on_grid(a: np.ndarray) -> np.ndarray:
     return np.round(np.asarray(a, np.float64) / GRID) * GRID
 
 
@@ -67,7 +68,7 @@ def lift_to_lines(points3d: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarr
     d = np.random.default_rng(int(seed)).normal(size=points3d.shape)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     anchors = points3d - np.sum(points3d * d, axis=1, keepdims=True) * d
-    return _on_grid(d), _on_grid(anchors)
+    return on_grid(d), on_grid(anchors)
 
 
 @dataclass
@@ -96,8 +97,26 @@ def write_lines(path: Path, directions: np.ndarray, anchors: np.ndarray, instanc
     """Write ``lines.npz``: each line's direction and Plücker moment (never a point of it), see the module."""
     directions = np.asarray(directions, np.float64).reshape(-1, 3)
     moments = np.cross(np.asarray(anchors, np.float64).reshape(-1, 3), directions)
-    np.savez(path, directions=_on_grid(directions), moments=_on_grid(moments),
+    np.savez(path, directions=on_grid(directions), moments=on_grid(moments),
              instance=np.asarray(instance, np.int64), track_length=np.asarray(track_length, np.int64))
+
+
+def read_line_fields(path: Path, fields: tuple[str, ...], kind: str) -> list[np.ndarray]:
+    """The arrays ``fields`` of a map's lines file ``path``; a :class:`MapError` naming the file (missing: ``kind``
+    keeps its lines there) or the missing field."""
+    if not path.is_file():
+        raise MapError(f"{path}: missing ({kind} keeps its lines there: rebuild the map)")
+    with np.load(path) as data:
+        try:
+            return [data[name] for name in fields]
+        except KeyError as exc:
+            raise MapError(f"{path}: field {exc.args[0]!r} missing") from None
+
+
+def check_unit_directions(path: Path, directions: np.ndarray) -> None:
+    """A :class:`MapError` naming ``path`` when a stored line direction is not unit length."""
+    if len(directions) and np.abs(np.linalg.norm(directions, axis=1) - 1.0).max() > 1e-6:
+        raise MapError(f"{path}: field 'directions' holds vectors that are not unit length")
 
 
 def read_line_map(map_dir: Path) -> LineMapData:
@@ -106,18 +125,11 @@ def read_line_map(map_dir: Path) -> LineMapData:
     meta, camera = read_map_meta(map_dir)
     names, features, point_index = read_map_features(map_dir, camera)
     path = map_dir / LINES_FILE
-    if not path.is_file():
-        raise MapError(f"{path}: missing (a line-cloud map keeps its lines there: rebuild the map)")
-    with np.load(path) as data:
-        try:
-            d, m, inst = data["directions"], data["moments"], data["instance"]
-        except KeyError as exc:
-            raise MapError(f"{path}: field {exc.args[0]!r} missing") from None
+    d, m, inst = read_line_fields(path, ("directions", "moments", "instance"), "a line-cloud map")
     if d.shape != m.shape or d.ndim != 2 or d.shape[1] != 3 or len(inst) != len(d):
         raise MapError(f"{path}: fields 'directions' {d.shape}, 'moments' {m.shape} and 'instance' "
                        f"{inst.shape} must be (P, 3), (P, 3) and (P,)")
-    if len(d) and np.abs(np.linalg.norm(d, axis=1) - 1.0).max() > 1e-6:
-        raise MapError(f"{path}: field 'directions' holds vectors that are not unit length")
+    check_unit_directions(path, d)
     if any(len(idx) and idx.max() >= len(d) for idx in point_index):
         raise MapError(f"{map_dir / 'features.npz'}: fields 'p3d_<i>' index past the {len(d)} lines")
     return LineMapData(meta, camera, names, features, point_index, np.zeros((0, 3)), inst,
@@ -213,18 +225,9 @@ def line_residuals_px(cam_from_world: np.ndarray, keypoints: np.ndarray, directi
     return matches.residuals(cam_from_world), matches.in_front(cam_from_world)
 
 
-def _rotvec_matrix(w: np.ndarray) -> np.ndarray:
-    """``exp([w]_x)`` (Rodrigues' formula; ``Rotation.from_rotvec`` costs more than the rest of an LM step)."""
-    angle = math.sqrt(float(w @ w))
-    k = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    if angle < 1e-8:
-        return np.eye(3) + k + 0.5 * k @ k
-    return np.eye(3) + (math.sin(angle) / angle) * k + ((1.0 - math.cos(angle)) / angle ** 2) * k @ k
-
-
 def _updated(pose: np.ndarray, x: np.ndarray) -> np.ndarray:
     out = np.eye(4)
-    out[:3, :3] = _rotvec_matrix(x[:3]) @ pose[:3, :3]
+    out[:3, :3] = cv2.Rodrigues(np.asarray(x[:3], np.float64))[0] @ pose[:3, :3]  # cheaper than scipy's Rotation
     out[:3, 3] = pose[:3, 3] + x[3:]
     return out
 

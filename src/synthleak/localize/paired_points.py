@@ -17,7 +17,7 @@ On disk (``paired_lines.npz`` of a map built with ``[localize] representation = 
 once: ``directions`` (L, 3) and Plücker ``moments`` (L, 3) on the line cloud's 1e-9 grid; per *slot* (one slot
 per triangulated point, what ``features.npz``'s ``p3d_<i>`` index): ``line`` (P,) the slot's line, ``instance``
 (P,) its own server-side label, ``track_length`` (P,). No coordinate is stored per slot, and no point of any
-line. The zip members carry a fixed timestamp: the same inputs give the same bytes.
+line. The same inputs give the same bytes.
 
 In memory (:func:`read_paired_point_map`) the map is a :class:`~synthleak.localize.line_cloud.LineMapData` whose
 ``lines`` and ``instance`` are per slot (each slot carries its line's direction and anchor and its own label), so
@@ -26,14 +26,20 @@ the localizer solves it as a line cloud and the defense's instance counts still 
 
 from __future__ import annotations
 
-import io
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from synthleak.localize.line_cloud import GRID, LIFT_ROOT_SEED, LineCloud, LineMapData, lift_to_lines
+from synthleak.localize.line_cloud import (
+    LIFT_ROOT_SEED,
+    LineCloud,
+    LineMapData,
+    check_unit_directions,
+    lift_to_lines,
+    on_grid,
+    read_line_fields,
+)
 from synthleak.localize.store import MapError, read_map_features, read_map_meta
 from synthleak.seeding import derive_seed
 
@@ -44,16 +50,11 @@ MIN_PAIR_DISTANCE_M = 0.1
 """Pairs closer than this are re-drawn (see the module)."""
 PAIR_ROUNDS = 16
 """Re-drawing rounds at most."""
-_ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 
 
 def pair_seed(tier: str, inputs_sha256: str) -> int:
     """The pairing seed of a map: keyed by its tier and inputs' content hash (the same inputs, the same lines)."""
     return derive_seed(LIFT_ROOT_SEED, PAIR_SEED_KEY, tier, inputs_sha256)
-
-
-def _on_grid(a: np.ndarray) -> np.ndarray:
-    return np.round(np.asarray(a, np.float64) / GRID) * GRID
 
 
 def pair_points(points3d: np.ndarray, seed: int, min_distance: float = MIN_PAIR_DISTANCE_M,
@@ -107,21 +108,17 @@ def lift_pairs(points3d: np.ndarray, seed: int, min_distance: float = MIN_PAIR_D
         d1, a1 = lift_to_lines(points3d[[single]], derive_seed(int(seed), "single"))
         d, anchors = np.concatenate([d, d1]), np.concatenate([anchors, a1])
         line[single] = len(pairs)
-    return PairedLines(_on_grid(d), _on_grid(anchors), line)
+    return PairedLines(on_grid(d), on_grid(anchors), line)
 
 
 def write_paired_lines(path: Path, lines: PairedLines, instance: np.ndarray, track_length: np.ndarray) -> None:
     """Write ``paired_lines.npz`` (see the module): each line's direction and moment once, per slot its line,
-    label and track length; fixed zip timestamps (deterministic bytes)."""
+    label and track length (deterministic bytes)."""
     d = np.asarray(lines.directions, np.float64).reshape(-1, 3)
-    arrays = {"directions": _on_grid(d), "moments": _on_grid(np.cross(np.asarray(lines.anchors, np.float64), d)),
+    arrays = {"directions": on_grid(d), "moments": on_grid(np.cross(np.asarray(lines.anchors, np.float64), d)),
               "line": np.asarray(lines.line, np.int64), "instance": np.asarray(instance, np.int64),
               "track_length": np.asarray(track_length, np.int64)}
-    with zipfile.ZipFile(path, "w") as zf:
-        for key, value in arrays.items():
-            buf = io.BytesIO()
-            np.lib.format.write_array(buf, value, allow_pickle=False)
-            zf.writestr(zipfile.ZipInfo(f"{key}.npy", date_time=_ZIP_TIME), buf.getvalue())
+    np.savez(path, **arrays)  # as lines.npz: numpy writes fixed zip timestamps
 
 
 def read_paired_point_map(map_dir: Path) -> LineMapData:
@@ -131,18 +128,11 @@ def read_paired_point_map(map_dir: Path) -> LineMapData:
     meta, camera = read_map_meta(map_dir)
     names, features, point_index = read_map_features(map_dir, camera)
     path = map_dir / PAIRED_LINES_FILE
-    if not path.is_file():
-        raise MapError(f"{path}: missing (a paired-point map keeps its lines there: rebuild the map)")
-    with np.load(path) as data:
-        try:
-            d, m, line, inst = data["directions"], data["moments"], data["line"], data["instance"]
-        except KeyError as exc:
-            raise MapError(f"{path}: field {exc.args[0]!r} missing") from None
+    d, m, line, inst = read_line_fields(path, ("directions", "moments", "line", "instance"), "a paired-point map")
     if d.shape != m.shape or d.ndim != 2 or d.shape[1] != 3 or line.ndim != 1 or inst.shape != line.shape:
         raise MapError(f"{path}: fields 'directions' {d.shape}, 'moments' {m.shape}, 'line' {line.shape} and "
                        f"'instance' {inst.shape} must be (L, 3), (L, 3), (P,) and (P,)")
-    if len(d) and np.abs(np.linalg.norm(d, axis=1) - 1.0).max() > 1e-6:
-        raise MapError(f"{path}: field 'directions' holds vectors that are not unit length")
+    check_unit_directions(path, d)
     if len(line) and (line.min() < 0 or line.max() >= len(d)):
         raise MapError(f"{path}: field 'line' indexes past the {len(d)} lines")
     if len(d) and not np.isin(np.bincount(line, minlength=len(d)), (1, 2)).all():

@@ -50,8 +50,7 @@ def study_servers(localize: Any) -> list[Server]:
     representations = as_list(localize.representation)
     servers = [Server(tier, profile, representation)
                for tier in localize.tiers for profile in profiles for representation in representations]
-    chosen = getattr(localize, "servers", None)
-    return [server for server in servers if server.name in chosen] if chosen else servers
+    return [server for server in servers if server.name in localize.servers] if localize.servers else servers
 
 
 def server_by_name(localize: Any) -> dict[str, Server]:
