@@ -197,12 +197,15 @@ def test_auto_falls_back_to_numpy_where_int8_is_slow(fresh_probe: None, monkeypa
 
 
 def test_auto_takes_a_faster_backend(fresh_probe: None, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The reverse: a torch product far faster than float32 BLAS (here float32 BLAS made to sleep, with the
-    real torch product where it runs, else an exact numpy stand-in) is measured, chosen and used."""
-    real = matching._torch_int_mm() or (lambda a, b: (a.astype(np.int32) @ b.astype(np.int32).T))
+    """The reverse: a "torch" product far faster than float32 BLAS (an exact int32 stand-in built on the real
+    BLAS product, while the float32 backend is made to sleep 50 ms a call) is measured, chosen and used. The
+    stand-in keeps the outcome independent of how fast this host's real int8 kernels are (on a slow one
+    under load they take longer than the sleep)."""
+    blas = matching._float32_product
     calls: list[int] = []
-    monkeypatch.setattr(matching, "_torch_int_mm", lambda: _counting(real, calls))
-    monkeypatch.setattr(matching, "_float32_product", _counting(matching._float32_product, [], sleep_s=0.01))
+    stand_in = _counting(lambda a, b: blas(a, b).astype(np.int32), calls)
+    monkeypatch.setattr(matching, "_torch_int_mm", lambda: stand_in)
+    monkeypatch.setattr(matching, "_float32_product", _counting(blas, [], sleep_s=0.05))
     assert matching.auto_backend() == "torch"
     assert matching.probe_timings()["torch"] * matching.TORCH_MARGIN <= matching.probe_timings()["numpy"]
     calls.clear()
