@@ -42,3 +42,12 @@ def test_the_tier_ordering_names_the_presence_rule_of_the_decision_column() -> N
     rows = [_row("sift", "r0", "a", True, True, 4)]
     assert "ε rule, pooled over rooms" in tier_ordering_markdown(rows)
     assert "presence classifier, pooled over rooms" in tier_ordering_markdown(rows, presence="classifier")
+
+
+def test_equal_recalls_are_written_as_a_tie() -> None:
+    rows = [_row("sift", "r0", "a", True, True, 3), _row("sift", "r0", "b", True, False, 0),
+            _row("xfeat", "r0", "a", True, True, 3), _row("xfeat", "r0", "b", True, False, 0),
+            _row("orb", "r0", "a", True, False, 3), _row("orb", "r0", "b", True, False, 0)]
+    text = tier_ordering_markdown(rows)
+    assert "`sift` (0.50) = `xfeat` (0.50) > `orb` (0.00)" in text
+    assert "No learned tier has a higher recall than `sift`" in text

@@ -101,6 +101,15 @@ def _verdict(ours: Sequence[dict], key_r: str, suffix: str) -> str:
     return f"No learned tier has a higher recall than `{sift['tier']}`{where} (the paper found the opposite)."
 
 
+def _ranked(rows: Sequence[dict], key: str, label: str) -> str:
+    """``label`` of each row by decreasing ``key``, joined by ``>``, or ``=`` between equal values."""
+    ordered = sorted(rows, key=lambda r: -r[key])
+    parts = [label.format(ordered[0]["tier"], ordered[0][key])] if ordered else []
+    for before, row in zip(ordered, ordered[1:], strict=False):
+        parts += [" = " if row[key] == before[key] else " > ", label.format(row["tier"], row[key])]
+    return "".join(parts)
+
+
 def tier_ordering_markdown(rows: Sequence[dict], aligner: str = "alg1", presence: str = "eps") -> str:
     """The paper's tier ordering (mean of Table 1 over its scenes) beside this study's, with a one-line verdict;
     ``presence``: the rule behind the rows' ``decision`` column (``[attack] presence``)."""
@@ -116,9 +125,8 @@ def tier_ordering_markdown(rows: Sequence[dict], aligner: str = "alg1", presence
     ours = tier_ordering(rows, aligner)
     columns = [f"{k} {dr:g}°, {dt:g}m" for dr, dt in PAPER_THRESHOLDS for k in ("P", "R")]
     key_r = f"R {first[0]:g}°, {first[1]:g}m"
-    paper_order = " > ".join(f"{r['tier']} ({r[key_r]:.2f})" for r in sorted(paper_rows, key=lambda r: -r[key_r]))
-    ours_sorted = sorted((r for r in ours if key_r in r), key=lambda r: -r[key_r])
-    ours_order = " > ".join(f"`{r['tier']}` ({r[key_r]:.2f})" for r in ours_sorted) or "-"
+    paper_order = _ranked(paper_rows, key_r, "{} ({:.2f})")
+    ours_order = _ranked([r for r in ours if key_r in r], key_r, "`{}` ({:.2f})") or "-"
     verdicts = [_verdict(ours, key_r, suffix) for suffix in dict.fromkeys(_suffix(r["tier"]) for r in ours)]
     tested = [v for v in verdicts if v]
     verdict = (" ".join(tested) if tested
