@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import pairwise
 from statistics import fmean
 
 from synthleak.evaluate.tables import group_rows, markdown_table, precision_recall
@@ -105,7 +106,7 @@ def _ranked(rows: Sequence[dict], key: str, label: str) -> str:
     """``label`` of each row by decreasing ``key``, joined by ``>``, or ``=`` between equal values."""
     ordered = sorted(rows, key=lambda r: -r[key])
     parts = [label.format(ordered[0]["tier"], ordered[0][key])] if ordered else []
-    for before, row in zip(ordered, ordered[1:], strict=False):
+    for before, row in pairwise(ordered):
         parts += [" = " if row[key] == before[key] else " > ", label.format(row["tier"], row[key])]
     return "".join(parts)
 
