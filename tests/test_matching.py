@@ -13,9 +13,10 @@ from synthleak.localize.features import Features
 from synthleak.localize.matching import match_features
 
 
-def _reference(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool) -> set[tuple[int, int]]:
+def _reference(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool,
+               both_ways: bool = False) -> set[tuple[int, int]]:
     """Lowe's test on true L2 distances between unit rows (float) or Hamming (uint8) distances with a full sort,
-    the slow obvious way."""
+    the slow obvious way (``both_ways``: HLoc's ``NN-ratio``, the test from each side, then the mutual check)."""
     if a.dtype == np.uint8:
         bits_a, bits_b = np.unpackbits(a, axis=1), np.unpackbits(b, axis=1)
         dist = (bits_a[:, None, :] != bits_b[None]).sum(-1).astype(np.float64)
@@ -29,6 +30,9 @@ def _reference(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool) -> set[
         if 0 < ratio < 1 and len(row) > 1 and not row[j] < ratio * row[order[1]]:
             continue
         if mutual and int(np.argmin(dist[:, j])) != i:
+            continue
+        column = np.sort(dist[:, j])
+        if both_ways and mutual and 0 < ratio < 1 and len(column) > 1 and not column[0] < ratio * column[1]:
             continue
         out.add((i, j))
     return out
@@ -45,6 +49,29 @@ def test_float_matcher_equals_reference(ratio: float, mutual: bool) -> None:
     assert {tuple(m) for m in got.tolist()} == _reference(a, b, ratio, mutual)
     if ratio == 0.8 and mutual:
         assert len(got) >= 55  # the noisy copies match
+
+
+@pytest.mark.parametrize("binary", [False, True])
+def test_ratio_both_ways_equals_reference(binary: bool) -> None:
+    """HLoc's ``NN-ratio`` (the ratio test from both sides, then the mutual check): the reference's matches, and
+    strictly fewer than the query-side test where map descriptors come in near-identical pairs."""
+    rng = np.random.default_rng(5)
+    if binary:
+        b = rng.integers(0, 256, size=(150, 32), dtype=np.uint8)
+        twins = np.packbits(np.unpackbits(b[:30], axis=1) ^ (rng.random((30, 256)) < 0.033), axis=1)
+        a = np.concatenate([np.packbits(np.unpackbits(b[:90], axis=1) ^ (rng.random((90, 256)) < 0.03), axis=1),
+                            twins])  # a query row near b[k] and a second query row (its twin) near it too
+        fa, fb = Features(np.zeros((120, 2)), a, binary=True), Features(np.zeros((150, 2)), b, binary=True)
+    else:
+        b = rng.normal(size=(150, 32)).astype(np.float32)
+        a = np.concatenate([b[:90] + 0.05 * rng.normal(size=(90, 32)),
+                            b[:30] + 0.055 * rng.normal(size=(30, 32))]).astype(np.float32)
+        fa, fb = Features(np.zeros((120, 2)), a), Features(np.zeros((150, 2)), b)
+    one_way = {tuple(m) for m in match_features(fa, fb, 0.8, True).tolist()}
+    both = {tuple(m) for m in match_features(fa, fb, 0.8, True, both_ways=True).tolist()}
+    assert both == _reference(a, b, 0.8, True, both_ways=True)
+    assert one_way == _reference(a, b, 0.8, True)
+    assert both < one_way and len(one_way) - len(both) >= 10  # the twinned columns fail from the map's side
 
 
 def test_sift_distances_are_exact_and_scale_free() -> None:

@@ -79,7 +79,8 @@ def test_profiles_are_strict_and_hloc():
 def test_strict_leaves_every_tier_as_it_was(name):
     tier = profile_tier(name, "strict")
     assert tier is get_tier(name) is TIERS[name]
-    assert dataclasses.asdict(tier) == {"name": name, **TODAY[name]}
+    assert tier.definition() == {"name": name, **TODAY[name]}  # what maps and keys record: as before
+    assert dataclasses.asdict(tier) == {"name": name, **TODAY[name], "ratio_both_ways": False}
 
 
 def test_strict_tier_listing_is_the_plain_one():
@@ -95,7 +96,10 @@ def test_hloc_gives_hlocs_defaults_and_keeps_the_features(name):
     strict = dataclasses.asdict(get_tier(name))
     changed = {k for k, v in dataclasses.asdict(tier).items() if v != strict[k]}
     assert changed <= set(PROFILE_FIELDS)  # extractor, keypoint budget, weights: as in strict
-    assert get_tier(name) == TIERS[name] and dataclasses.asdict(get_tier(name)) == {"name": name, **TODAY[name]}
+    assert get_tier(name) == TIERS[name] and get_tier(name).definition() == {"name": name, **TODAY[name]}
+    # HLoc's NN-ratio tests the ratio from both sides (hloc/matchers/nearest_neighbor.py:51-58); NN-mutual has none
+    assert tier.ratio_both_ways == (name in ("sift", "kornia-sift"))
+    assert ("ratio_both_ways" in tier.definition()) == tier.ratio_both_ways
 
 
 def test_hloc_covers_every_built_in_tier():
@@ -166,7 +170,7 @@ def test_tier_keys_stay_under_strict_and_carry_the_definition_under_hloc():
     assert tier_weights("orb", "strict") == []
     (entry,) = tier_weights("sift", "hloc")
     assert entry["profile"] == "hloc" and entry["weights"] == {}
-    assert entry["tier"] == dataclasses.asdict(profile_tier("sift", "hloc"))
+    assert entry["tier"] == profile_tier("sift", "hloc").definition() and entry["tier"]["ratio_both_ways"]
     assert tier_weights("orb", "hloc") != tier_weights("akaze", "hloc")
 
 
@@ -199,7 +203,7 @@ def test_maps_record_the_profile_and_strict_maps_keep_their_keys(room, tmp_path)
     assert meta["settings"]["profile"] == "hloc"
     definition = meta["settings"]["tier_definition"]
     assert (definition["ratio"], definition["mutual"], definition["min_inliers"],
-            definition["pnp_max_error_px"]) == (0.8, True, 3, 12.0)
+            definition["pnp_max_error_px"], definition["ratio_both_ways"]) == (0.8, True, 3, 12.0, True)
     loc = Localizer.load(map_dir, hloc_cfg)
     assert (loc.min_inliers, loc.max_error_px, loc.tier) == (3, 12.0, profile_tier("sift", "hloc"))
     with pytest.raises(MapError, match=r"built with \[localize\] profile = 'hloc'.*'strict'"):
@@ -210,4 +214,4 @@ def test_maps_record_the_profile_and_strict_maps_keep_their_keys(room, tmp_path)
 
     build_map(room, "orb", tmp_path / "orb", hloc_cfg, progress=False)
     orb = json.loads((tmp_path / "orb" / "map.json").read_text())["settings"]["tier_definition"]
-    assert (orb["ratio"], orb["mutual"], orb["min_inliers"]) == (0.0, True, 3)
+    assert (orb["ratio"], orb["mutual"], orb["min_inliers"]) == (0.0, True, 3) and "ratio_both_ways" not in orb

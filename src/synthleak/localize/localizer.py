@@ -59,6 +59,9 @@ class LocalizationResult:
     withheld_cam_from_world: np.ndarray | None = None
     """The pose PnP found for a query the enabled defense refused (server-side only: the HTTP answer is
     ``{"success": false}``); studies log it to attack the same queries with and without the defense."""
+    inlier_matches: np.ndarray | None = None
+    """(K, 2) ``(query keypoint, map point)`` PnP inliers, one per query keypoint (in process only; benchmarks
+    read where a query's inliers lie in its image)."""
 
 
 class Localizer:
@@ -231,7 +234,7 @@ class Localizer:
             if self.defense.enabled and not decision.accepted:
                 success, withheld = False, pose
         return LocalizationResult(success, pose if success else None, num_inliers, len(corr), counts_sorted,
-                                  decision, withheld_cam_from_world=withheld)
+                                  decision, withheld_cam_from_world=withheld, inlier_matches=inliers[first])
 
     def _log(self, decision: DefenseDecision, num_inliers: int) -> None:
         if self.decision_log is not None:

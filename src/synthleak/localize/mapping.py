@@ -11,7 +11,6 @@ import hashlib
 import json
 import shutil
 from collections import Counter
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -73,7 +72,7 @@ def _map_settings(tier: str, config: LocalizeConfig, weights: dict) -> dict:
     if config.profile != DEFAULT_PROFILE:  # strict maps keep the settings they had before profiles
         settings["profile"] = config.profile
     if weights or config.profile != DEFAULT_PROFILE:
-        definition = asdict(profile_tier(tier, config.profile))
+        definition = profile_tier(tier, config.profile).definition()
         settings["tier_definition"] = json.loads(json.dumps(definition))  # as map.json reads back
     if config.representation != DEFAULT_REPRESENTATION:  # point maps keep the settings they had before
         settings["representation"] = config.representation

@@ -46,42 +46,60 @@ def unit_scores(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return score
 
 
-def match_features(a: Features, b: Features, ratio: float, mutual: bool) -> np.ndarray:
-    """(M, 2) int indices ``(i in a, j in b)``; ratio <= 0 or >= 1 disables the ratio test. Float descriptors
-    are compared as unit vectors (:func:`unit_scores`), binary ones by Hamming distance."""
+def match_features(a: Features, b: Features, ratio: float, mutual: bool, *, both_ways: bool = False) -> np.ndarray:
+    """(M, 2) int indices ``(i in a, j in b)``; ratio <= 0 or >= 1 disables the ratio test; ``both_ways``: a
+    mutual match also passes the ratio test from ``b``'s side (HLoc's ``NN-ratio``). Float descriptors are
+    compared as unit vectors (:func:`unit_scores`), binary ones by Hamming distance."""
     if len(a) == 0 or len(b) == 0:
         return np.zeros((0, 2), np.int64)
     if a.binary:
-        return _match_binary(a.descriptors, b.descriptors, ratio, mutual)
+        return _match_binary(a.descriptors, b.descriptors, ratio, mutual, both_ways=both_ways)
     # Lowe's test on squared distances: d0 < r d1  <=>  d0^2 < r^2 d1^2 (no square roots)
     return nearest_neighbours(unit_scores(a.descriptors, b.descriptors), ratio * ratio, mutual,
-                              to_distance=lambda s: 2.0 + 2.0 * s.astype(np.float64))
+                              to_distance=lambda s: 2.0 + 2.0 * s.astype(np.float64), both_ways=both_ways)
 
 
 def nearest_neighbours(dist: np.ndarray, ratio: float, mutual: bool,
-                       to_distance: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
+                       to_distance: Callable[[np.ndarray], np.ndarray] | None = None,
+                       both_ways: bool = False) -> np.ndarray:
     """Matches from an (Na, Nb) float or integer score matrix (modified in place and restored): each row's
     lowest column (lowest index on ties) if ``best < ratio * second`` (when 0 < ratio < 1) and, with
-    ``mutual``, the row is also that column's lowest row. Scores must rank as distances do;
-    ``to_distance`` maps the best and second scores to the distances the ratio test compares (default: the
-    scores themselves)."""
+    ``mutual``, the row is also that column's lowest row; with ``mutual`` and ``both_ways``, also
+    ``best < ratio * (the column's second best)`` (the ratio test from the columns' side, as HLoc's
+    ``NN-ratio``: hloc/matchers/nearest_neighbor.py:51-58). Scores must rank as distances do; ``to_distance``
+    maps the best and second scores to the distances the ratio test compares (default: the scores themselves)."""
     rows = np.arange(dist.shape[0])
     nn = np.argmin(dist, axis=1)
     keep = np.ones(len(rows), dtype=bool)
-    if 0.0 < ratio < 1.0 and dist.shape[1] > 1:
+    ratio_on = 0.0 < ratio < 1.0
+    high = np.inf if dist.dtype.kind == "f" else np.iinfo(dist.dtype).max
+    if ratio_on and dist.shape[1] > 1:
         best = dist[rows, nn]
         # the row minimum after removing the best is the second best
-        dist[rows, nn] = np.inf if dist.dtype.kind == "f" else np.iinfo(dist.dtype).max
+        dist[rows, nn] = high
         second = dist.min(axis=1)
         dist[rows, nn] = best
-        if to_distance is not None:
-            best, second = to_distance(best), to_distance(second)
-        best, second = np.maximum(best, 0.0), np.maximum(second, 0.0)  # rounding below 0 counts as 0
-        keep &= best < ratio * second
+        keep &= _passes_ratio(best, second, ratio, to_distance)
     if mutual:
         keep &= _is_column_argmin(dist, rows, nn)
+    if mutual and both_ways and ratio_on and dist.shape[0] > 1:
+        idx = np.nonzero(keep)[0]  # each kept row is its column's lowest row: the column's best
+        cols = nn[idx]
+        best = dist[idx, cols]
+        dist[idx, cols] = high
+        second = dist.min(axis=0)[cols]  # the column minimum after removing the best is the second best
+        dist[idx, cols] = best
+        keep[idx] &= _passes_ratio(best, second, ratio, to_distance)
     idx = np.nonzero(keep)[0]
     return np.stack([idx, nn[idx]], axis=1).astype(np.int64)
+
+
+def _passes_ratio(best: np.ndarray, second: np.ndarray, ratio: float,
+                  to_distance: Callable[[np.ndarray], np.ndarray] | None) -> np.ndarray:
+    if to_distance is not None:
+        best, second = to_distance(best), to_distance(second)
+    best, second = np.maximum(best, 0.0), np.maximum(second, 0.0)  # rounding below 0 counts as 0
+    return best < ratio * second
 
 
 def _is_column_argmin(dist: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -245,9 +263,10 @@ def hamming(a: np.ndarray, b: np.ndarray, backend: str = "auto") -> np.ndarray:
     return _hamming_from_score(negated_dot(a, b, backend), np.asarray(a).shape[1])
 
 
-def _match_binary(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool, backend: str = "auto") -> np.ndarray:
+def _match_binary(a: np.ndarray, b: np.ndarray, ratio: float, mutual: bool, backend: str = "auto", *,
+                  both_ways: bool = False) -> np.ndarray:
     """Hamming matching, same rules as the float matcher (Lowe's test on the Hamming distances themselves,
     in float32; the nearest neighbours straight from the product's scores)."""
     packed_bytes = np.asarray(a).shape[1]
     return nearest_neighbours(negated_dot(a, b, backend), ratio, mutual,
-                              to_distance=lambda score: _hamming_from_score(score, packed_bytes))
+                              to_distance=lambda score: _hamming_from_score(score, packed_bytes), both_ways=both_ways)

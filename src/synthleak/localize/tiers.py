@@ -75,6 +75,14 @@ class Tier:
     """Weight files loaded (keys of :data:`synthleak.localize.deep.WEIGHTS`)."""
     match_threshold: float = 0.0
     """Learned matchers: the match score a match must exceed (LightGlue's ``filter_threshold``)."""
+    ratio_both_ways: bool = False
+    """Nearest-neighbour matchers: the ratio test also from the map image's side before the mutual check (HLoc's
+    ``NN-ratio``, hloc/matchers/nearest_neighbor.py:51-58); False: from the query side only."""
+
+    def definition(self) -> dict[str, Any]:
+        """The fields that enter maps' and cache keys: every field, except those added after keys were first
+        written (:data:`LATER_FIELDS`) while they hold their default (so existing maps and keys stay valid)."""
+        return {k: v for k, v in asdict(self).items() if not (k in LATER_FIELDS and v == LATER_FIELDS[k])}
 
     def keypoint_budget(self, max_keypoints: int) -> int:
         """Keypoints kept per image: ``max_keypoints`` capped by the tier's budget."""
@@ -97,6 +105,9 @@ class Tier:
         return _registered(self.name)[1](self, weights_dir)
 
 
+LATER_FIELDS: dict[str, Any] = {"ratio_both_ways": False}
+"""Tier fields added after maps recorded tier definitions, with the default a definition leaves out."""
+
 ExtractorFactory = Callable[[Tier, int, Path | None], Extractor]
 """``factory(tier, max_keypoints, weights_dir) -> Extractor`` (``max_keypoints`` already capped by the tier)."""
 MatcherFactory = Callable[[Tier, Path | None], Matcher]
@@ -111,8 +122,8 @@ _DESCRIPTIONS: dict[str, str] = {}
 
 def nn_matcher(tier: Tier, weights_dir: Path | None = None) -> Matcher:
     """Nearest-neighbour matching with the tier's ratio test and mutual check (the default matcher factory)."""
-    ratio, mutual = tier.ratio, tier.mutual
-    return lambda a, b: match_features(a, b, ratio, mutual)
+    ratio, mutual, both_ways = tier.ratio, tier.mutual, tier.ratio_both_ways
+    return lambda a, b: match_features(a, b, ratio, mutual, both_ways=both_ways)
 
 
 def register_tier(
@@ -232,7 +243,7 @@ register_tier(Tier("aliked-lightglue", ratio=0.0, mutual=False, pnp_max_error_px
 
 
 # ---------------------------------------------------------------------------------------------- profiles
-PROFILE_FIELDS = ("ratio", "mutual", "min_inliers", "pnp_max_error_px", "match_threshold")
+PROFILE_FIELDS = ("ratio", "mutual", "min_inliers", "pnp_max_error_px", "match_threshold", "ratio_both_ways")
 """The :class:`Tier` fields a server profile may set: matching and PnP only. A tier's extractor and keypoint
 budget are the same under every profile, so query features are too (the study's features stage shares them)."""
 
@@ -243,9 +254,10 @@ _HLOC_LOCALIZE = {"pnp_max_error_px": 12.0, "min_inliers": 3}
 ``estimate_and_refine_absolute_pose`` returns a pose (hloc/localize_sfm.py:63-70,203-204), which COLMAP's
 LO-RANSAC does once its best model has at least ``P3PEstimator::kMinNumSamples`` = 3 inliers
 (colmap src/colmap/optim/loransac.h:368-372, src/colmap/estimators/solvers/absolute_pose.h:65)."""
-_HLOC_NN_RATIO = {"ratio": 0.8, "mutual": True}
+_HLOC_NN_RATIO = {"ratio": 0.8, "mutual": True, "ratio_both_ways": True}
 """hloc/match_features.py:69-76 ``NN-ratio``: mutual check, ratio 0.8 (hloc/matchers/nearest_neighbor.py:11: on
-squared distances against ratio**2, the same test as ours on distances)."""
+squared distances against ratio**2, the same test as ours on distances), applied from both images' side before
+the mutual check (nearest_neighbor.py:51-58)."""
 _HLOC_NN_MUTUAL = {"ratio": 0.0, "mutual": True}
 """hloc/match_features.py:77-83 ``NN-mutual``: mutual check only (no ratio, no distance threshold:
 hloc/matchers/nearest_neighbor.py:28-32)."""
@@ -276,7 +288,7 @@ configuration (cvg/Hierarchical-Localization at c13273b; every tier keeps its fe
 tier               HLoc configuration             ratio mutual LightGlue  min inliers PnP px
 ================== ============================== ===== ====== ========== =========== ======
 orb, akaze         ``NN-mutual`` (Hamming)        none  yes    --         3           12
-sift, kornia-sift  ``NN-ratio``                   0.8   yes    --         3           12
+sift, kornia-sift  ``NN-ratio`` (ratio both ways) 0.8   yes    --         3           12
 xfeat              ``NN-mutual``                  none  yes    --         3           12
 xfeat-lighterglue  LightGlue default (LighterGlue) --    --     > 0.1      3           12
 disk-lightglue     ``disk+lightglue``             --    --     > 0.1      3           12

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import importlib.util
 from collections.abc import Sequence
-from dataclasses import asdict
 
 from synthleak.errors import ConfigError, MissingDependencyError
 from synthleak.localize.deep import EXTRA, INSTALL_HINT
@@ -20,7 +19,7 @@ def tier_weights(tier: str, profile: str = DEFAULT_PROFILE) -> list:
     record = spec.weights_record()
     if not record and profile == DEFAULT_PROFILE:
         return []
-    entry = {"tier": asdict(spec), "weights": {name: e["sha256"] for name, e in sorted(record.items())}}
+    entry = {"tier": spec.definition(), "weights": {name: e["sha256"] for name, e in sorted(record.items())}}
     return [entry if profile == DEFAULT_PROFILE else {"profile": profile, **entry}]
 
 
