@@ -26,6 +26,11 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
+from synthleak.portable import cos as pcos
+from synthleak.portable import exp as pexp
+from synthleak.portable import power as ppow
+from synthleak.portable import sin as psin
+
 Colour = tuple[float, float, float]
 
 
@@ -136,7 +141,7 @@ def _draw_motifs(
         elif shape == "flower":
             for k in range(5):
                 a = np.deg2rad(ang + 72 * k)
-                pc = (int((cx + 0.6 * r * np.cos(a)) * 16), int((cy + 0.6 * r * np.sin(a)) * 16))
+                pc = (int((cx + 0.6 * r * pcos(a)) * 16), int((cy + 0.6 * r * psin(a)) * 16))
                 cv2.ellipse(
                     img8,
                     pc,
@@ -158,7 +163,7 @@ def _draw_motifs(
         else:  # triangle
             a0 = np.deg2rad(ang)
             pts = np.array(
-                [[cx + r * np.cos(a0 + k * 2.094), cy + r * np.sin(a0 + k * 2.094)] for k in range(3)]
+                [[cx + r * pcos(a0 + k * 2.094), cy + r * psin(a0 + k * 2.094)] for k in range(3)]
             )
             cv2.fillPoly(img8, [np.int32(pts * 16)], col, cv2.LINE_AA, 4)
 
@@ -189,16 +194,16 @@ def _wood(rng, base, size, c2, fs):
     for _ in range(int(rng.integers(2, 4))):  # flat-sawn "cathedral" arcs
         x0, y0 = rng.uniform(0, size, 2)
         ln = rng.uniform(80, 200) * fs
-        d += 60 * fs * np.exp(-(((xx - x0) / ln) ** 2)) * np.exp(-(((yy - y0) / (70 * fs)) ** 2))
+        d += 60 * fs * pexp(-(((xx - x0) / ln) ** 2)) * pexp(-(((yy - y0) / (70 * fs)) ** 2))
     knots = np.zeros((size, size), np.float32)
     for _ in range(int(rng.integers(6, 11))):  # knots: rings bend around a dark core
         kx, ky = rng.uniform(0, size, 2)
         kr = rng.uniform(4, 13) * fs
         rr = np.sqrt(((xx - kx) / 2.2) ** 2 + (yy - ky) ** 2)
-        d += 2.0 * kr * np.exp(-((rr / (2.5 * kr)) ** 2)) * np.sign(yy - ky + 1e-3)
+        d += 2.0 * kr * pexp(-((rr / (2.5 * kr)) ** 2)) * np.sign(yy - ky + 1e-3)
         knots = np.maximum(knots, np.clip(2.5 * (1.0 - rr / kr), 0, 1))
     ring = (d / period + 0.15 * _noise(rng, size, (12, 3))) % 1.0
-    late = np.clip((ring - 0.55) / 0.45, 0, 1) ** 1.5
+    late = ppow(np.clip((ring - 0.55) / 0.45, 0, 1), 1.5)
     fibre = _noise(rng, size, (90, 3), octaves=2)
     pores = _speckle(rng, size, 5.0, 2.0)
     rays = np.zeros((size, size), np.float32)  # ray flecks: soft elongated spots along the grain (1-4 cm)
@@ -236,8 +241,8 @@ def _fabric(rng, base, size, c2, fs):
     weft_lvl = rng.normal(0, 0.07, size // p + 2)[ci]
     slub_w = _noise(rng, size, (size / 24, size / p / 1.0)) * 0.06
     slub_h = _noise(rng, size, (size / p / 1.0, size / 24)) * 0.06
-    prof_w = np.cos((fx - 0.5) * np.pi) ** 0.6
-    prof_h = np.cos((fy - 0.5) * np.pi) ** 0.6
+    prof_w = ppow(pcos((fx - 0.5) * np.pi), 0.6)
+    prof_h = ppow(pcos((fy - 0.5) * np.pi), 0.6)
     lum = np.where(over, 0.80 + 0.25 * prof_h + weft_lvl + slub_h, 0.78 + 0.25 * prof_w + warp_lvl + slub_w)
     melange = _noise(rng, size, 10, octaves=3)
     img = _colour_img(lum.astype(np.float32) * (1 + 0.08 * melange), base)
@@ -268,7 +273,7 @@ def _metal(rng, base, size, c2, fs):
         x0, y0 = rng.uniform(0, size, 2)
         ln = rng.exponential(35 * fs) + 5
         a = rng.uniform(0, np.pi) if rng.random() < 0.6 else rng.normal(0, 0.08)
-        x1, y1 = x0 + ln * np.cos(a), y0 + ln * np.sin(a)
+        x1, y1 = x0 + ln * pcos(a), y0 + ln * psin(a)
         cv2.line(
             scratches,
             (int(x0 * 16), int(y0 * 16)),
@@ -376,8 +381,8 @@ def _ceramic(rng, base, size, c2, fs):
     for _ in range(n_bands):  # painted horizontal bands (v = rows)
         y0 = rng.uniform(0, size)
         w = rng.uniform(6, 22) * fs
-        wav = y0 + 6 * np.sin(xx / size * 2 * np.pi * rng.integers(2, 6) + rng.uniform(0, 6))
-        band = np.clip(1 - np.abs(yy - wav) / w, 0, 1) ** 0.3
+        wav = y0 + 6 * psin(xx / size * 2 * np.pi * rng.integers(2, 6) + rng.uniform(0, 6))
+        band = ppow(np.clip(1 - np.abs(yy - wav) / w, 0, 1), 0.3)
         img = img * (1 - band[..., None]) + np.asarray(c2, np.float32) * band[..., None]
     img8 = _to_u8(img)
     _draw_motifs(
@@ -425,7 +430,7 @@ def _print(rng, base, size, c2, fs):
     yy, xx = np.mgrid[0:size, 0:size].astype(np.float32) / size
     cols = _palette(rng, base, 5)
     a = rng.uniform(0, 2 * np.pi)
-    grad = np.clip(0.5 + 0.5 * (np.cos(a) * (xx - 0.5) + np.sin(a) * (yy - 0.5)) * 1.6, 0, 1)
+    grad = np.clip(0.5 + 0.5 * (pcos(a) * (xx - 0.5) + psin(a) * (yy - 0.5)) * 1.6, 0, 1)
     img = _lerp(base, cols[0], grad)
     img8 = _to_u8(img * (1 + 0.06 * _noise(rng, size, 6, octaves=3))[..., None])
     for _ in range(int(rng.integers(5, 10))):  # big blocks
@@ -491,7 +496,7 @@ def _marble(rng, base, size, c2, fs):
     yy, xx = np.mgrid[0:size, 0:size].astype(np.float32) / size
     turb = _noise(rng, size, 3, octaves=5, persistence=0.6)
     a = rng.uniform(0, np.pi)
-    v = np.abs(np.sin((np.cos(a) * xx + np.sin(a) * yy) * rng.uniform(6, 12) / _fsc(fs, size) + 2.2 * turb))
+    v = np.abs(psin((pcos(a) * xx + psin(a) * yy) * rng.uniform(6, 12) / _fsc(fs, size) + 2.2 * turb))
     veins = np.clip(1 - v / 0.12, 0, 1) + 0.4 * np.clip(
         1 - np.abs(_noise(rng, size, 6, octaves=3)) / 0.08, 0, 1
     )
@@ -506,7 +511,7 @@ def _foliage(rng, base, size, c2, fs):
         x0 = rng.uniform(0, size)
         curve = (
             x0
-            + 30 * np.sin(yy / size * np.pi * rng.uniform(0.5, 2))
+            + 30 * psin(yy / size * np.pi * rng.uniform(0.5, 2))
             + 0.3 * (yy - size / 2) * rng.uniform(-1, 1)
         )
         vein = np.clip(1 - np.abs(xx - curve) / 2.5, 0, 1)
@@ -544,16 +549,16 @@ def _dial(rng, base, size, c2, fs):
     for k in range(60):
         a = 2 * np.pi * k / 60
         r0 = 0.40 * size if k % 5 else 0.36 * size
-        p0 = (int((c + r0 * np.sin(a)) * 16), int((c - r0 * np.cos(a)) * 16))
-        p1 = (int((c + 0.46 * size * np.sin(a)) * 16), int((c - 0.46 * size * np.cos(a)) * 16))
+        p0 = (int((c + r0 * psin(a)) * 16), int((c - r0 * pcos(a)) * 16))
+        p1 = (int((c + 0.46 * size * psin(a)) * 16), int((c - 0.46 * size * pcos(a)) * 16))
         cv2.line(img8, p0, p1, ink, 2 if k % 5 else 5, cv2.LINE_AA, 4)
     font = cv2.FONT_HERSHEY_SIMPLEX
     for h in range(1, 13):
         a = 2 * np.pi * h / 12
         txt = str(h)
         (tw, th), _ = cv2.getTextSize(txt, font, size / 400, max(1, size // 170))
-        x = c + 0.29 * size * np.sin(a) - tw / 2
-        y = c - 0.29 * size * np.cos(a) + th / 2
+        x = c + 0.29 * size * psin(a) - tw / 2
+        y = c - 0.29 * size * pcos(a) + th / 2
         cv2.putText(img8, txt, (int(x), int(y)), font, size / 400, ink, max(1, size // 170), cv2.LINE_AA)
     accent = _rgb255(_palette(rng, base, 1)[0])
     cv2.putText(

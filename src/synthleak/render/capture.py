@@ -45,6 +45,7 @@ from PIL import Image
 
 from synthleak.core.types import Camera
 from synthleak.errors import ConfigError
+from synthleak.portable import apply_matrix3, inv3, matmul, snap
 from synthleak.render.motion_blur import MotionBlur
 
 # --------------------------------------------------------------------------------------------- colour science
@@ -53,7 +54,7 @@ RGB_TO_XYZ = np.array(
     [[0.4124564, 0.3575761, 0.1804375], [0.2126729, 0.7151522, 0.0721750], [0.0193339, 0.1191920, 0.9503041]]
 )
 """Linear sRGB (D65) -> CIE XYZ (IEC 61966-2-1)."""
-XYZ_TO_RGB = np.linalg.inv(RGB_TO_XYZ)
+XYZ_TO_RGB = inv3(RGB_TO_XYZ)
 LUMA = np.array([0.2126729, 0.7151522, 0.0721750], dtype=np.float32)
 """Relative luminance Y of linear sRGB (row 2 of :data:`RGB_TO_XYZ`)."""
 
@@ -95,14 +96,14 @@ def planckian_xy(temperature_k: float) -> tuple[float, float]:
 def planckian_rgb(temperature_k: float) -> np.ndarray:
     """Linear sRGB of a black body's white at ``temperature_k`` (Y = 1 in XYZ, then scaled to G = 1)."""
     x, y = planckian_xy(temperature_k)
-    rgb = XYZ_TO_RGB @ np.array([x / y, 1.0, (1.0 - x - y) / y])
+    rgb = matmul(XYZ_TO_RGB, np.array([x / y, 1.0, (1.0 - x - y) / y]))
     return rgb / rgb[1]
 
 
 def rgb_to_cam_matrix(xyz_to_cam: np.ndarray) -> np.ndarray:
     """linear sRGB -> camera RGB for an XYZ -> camera matrix, rows normalised so that sRGB white maps to
     camera white (Brooks et al. 2019, ``random_ccm``)."""
-    m = np.asarray(xyz_to_cam, dtype=np.float64) @ RGB_TO_XYZ
+    m = matmul(np.asarray(xyz_to_cam, dtype=np.float64), RGB_TO_XYZ)
     return m / m.sum(axis=1, keepdims=True)
 
 
@@ -573,6 +574,22 @@ def _disc(diameter: float) -> np.ndarray:
     return k / k.sum()
 
 
+def _correlate(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """``x`` (H, W, C) correlated with ``kernel``, mirrored borders (OpenCV's ``BORDER_REFLECT``), by
+    scipy.ndimage (compiled without run-time SIMD dispatch, float64 sums: the same bits on every CPU, unlike
+    ``cv2.filter2D``)."""
+    from scipy.ndimage import correlate
+
+    k = np.asarray(kernel, dtype=np.float64)
+    out = np.empty_like(x)
+    for c in range(x.shape[2]):
+        correlate(x[..., c], k, output=out[..., c], mode="reflect")
+    return out
+
+
+VIGNETTING_STEP = 1e-9
+"""Grid of the vignetting factors (exact on every CPU, far below a float32 ulp of the image)."""
+
 DEFOCUS_LAYERS = (0.0, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0)
 """Disc diameters (px) of the layer stack; a pixel interpolates linearly between its two neighbours."""
 
@@ -603,7 +620,7 @@ def apply_defocus(x: np.ndarray, coc_px: np.ndarray, max_blur_px: float) -> np.n
             weight[falling] = (hi - c[falling]) / (hi - d)
         if not weight.any():
             continue
-        blurred = x if d <= 1.0 else cv2.filter2D(x, -1, _disc(d), borderType=cv2.BORDER_REFLECT)
+        blurred = x if d <= 1.0 else _correlate(x, _disc(d))
         out += blurred * weight[..., None]
     return out
 
@@ -613,15 +630,21 @@ def vignetting_map(height: int, width: int, corner_stops: float) -> np.ndarray:
     r_corner is the radius of the corner pixels' centres, so they are exactly ``corner_stops`` darker."""
     v = (np.arange(height, dtype=np.float32) + 0.5 - height / 2.0) ** 2
     u = (np.arange(width, dtype=np.float32) + 0.5 - width / 2.0) ** 2
-    r2 = (v[:, None] + u[None, :]) / np.float32(((height - 1) / 2.0) ** 2 + ((width - 1) / 2.0) ** 2 or 1.0)
-    return np.exp2(np.float32(-corner_stops) * r2)[..., None]
+    # 2^(-s r2) = 2^(-s v / R) 2^(-s u / R): two 1-D factors on a grid (numpy's exp2 picks SIMD kernels by
+    # CPU; snapped, the last-bit differences vanish), multiplied elementwise
+    scale = np.float32(((height - 1) / 2.0) ** 2 + ((width - 1) / 2.0) ** 2 or 1.0)
+    fv = snap(np.exp2(-float(corner_stops) * (v / scale).astype(np.float64)), VIGNETTING_STEP).astype(np.float32)
+    fu = snap(np.exp2(-float(corner_stops) * (u / scale).astype(np.float64)), VIGNETTING_STEP).astype(np.float32)
+    return (fv[:, None] * fu[None, :])[..., None]
 
 
 def meter(x: np.ndarray) -> float:
     """The auto-exposure meter: median relative luminance on a 4x-subsampled grid (AE statistics are low
     resolution)."""
-    y = x[::4, ::4] @ LUMA
-    return float(np.median(y))
+    sub = np.asarray(x[::4, ::4], dtype=np.float64)
+    luma = LUMA.astype(np.float64)
+    y = sub[..., 0] * luma[0] + sub[..., 1] * luma[1] + sub[..., 2] * luma[2]  # elementwise: the same bits on
+    return float(np.median(y))  # every CPU (``@`` is a BLAS product)
 
 
 def choose_exposure(metered: float, params: Exposure, base_iso: float) -> dict[str, float]:
@@ -866,7 +889,7 @@ def capture(
     response = np.ones(3) if sensor is None else np.array([1.0 / sensor.wb_gain_red, 1.0, 1.0 / sensor.wb_gain_blue])
     to_raw = (response[:, None] * rgb_to_cam) * gain
     if not np.array_equal(to_raw, np.eye(3)):
-        x = cv2.transform(x, to_raw.astype(np.float32))
+        x = apply_matrix3(x, to_raw)
         done("to_camera_rgb", rgb_to_cam=rgb_to_cam.round(6).tolist(), filter_response=response.round(6).tolist())
     if sensor is not None:
         raw = mosaic(x) if sensor.bayer else x
@@ -887,8 +910,8 @@ def capture(
     # ---- ISP: white balance (the camera's estimate, von Kries in camera RGB), colour correction to sRGB
     wb = 1.0 / response  # the gains that are right for the true illuminant
     if params.white_balance is not None:
-        true_w = rgb_to_cam @ planckian_rgb(params.white_balance.illuminant_k)
-        est_w = rgb_to_cam @ planckian_rgb(params.white_balance.estimated_k)
+        true_w = matmul(rgb_to_cam, planckian_rgb(params.white_balance.illuminant_k))
+        est_w = matmul(rgb_to_cam, planckian_rgb(params.white_balance.estimated_k))
         error = (true_w / true_w[1]) / (est_w / est_w[1])
         wb = wb * error
         record["effects"].append("white_balance")
@@ -898,9 +921,9 @@ def capture(
             wb_error_mired=params.white_balance.error_mired,
             wb_error_gains=error.round(6).tolist(),
         )
-    to_rgb = np.linalg.inv(rgb_to_cam) @ np.diag(wb)
+    to_rgb = matmul(inv3(rgb_to_cam), np.diag(wb))
     if not np.array_equal(to_rgb, np.eye(3)):
-        x = cv2.transform(x, to_rgb.astype(np.float32))
+        x = apply_matrix3(x, to_rgb)
         done("white_balance_ccm")
 
     # ---- tone curve and sRGB encoding: one exact LUT pass (see encode_8bit)

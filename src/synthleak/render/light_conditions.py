@@ -41,6 +41,8 @@ import numpy as np
 
 from synthleak.core.types import Light, RenderScene
 from synthleak.errors import StageError
+from synthleak.portable import matmul
+from synthleak.portable import norm as portable_norm
 from synthleak.render.capture import LUMA, planckian_rgb
 
 LIGHTING_CHANGES = ("same", "varied")
@@ -107,7 +109,7 @@ def window_normal(scene: RenderScene) -> np.ndarray | None:
     centre = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
     out = np.asarray(backdrop[0].world_from_object, dtype=np.float64)[:3, 3] - centre
     out[2] = 0.0
-    norm = float(np.linalg.norm(out))
+    norm = float(portable_norm(out))
     return out / norm if norm > 1e-6 else None
 
 
@@ -150,7 +152,7 @@ def _tinted(colour: tuple[float, float, float] | np.ndarray, temperature_k: floa
     ``planckian_rgb(T) / planckian_rgb(REFERENCE_K)``, at ``colour``'s luminance."""
     c = np.clip(np.asarray(colour, dtype=np.float64), 0.0, None)
     rgb = c * planckian_rgb(temperature_k) / planckian_rgb(REFERENCE_K)
-    rgb = rgb * float(np.dot(c, LUMA)) / max(float(np.dot(rgb, LUMA)), 1e-12)
+    rgb = rgb * float(matmul(c, LUMA)) / max(float(matmul(rgb, LUMA)), 1e-12)  # not BLAS: the same bits everywhere
     return (float(rgb[0]), float(rgb[1]), float(rgb[2]))
 
 
@@ -158,7 +160,7 @@ def _sun_light(condition: LightingCondition) -> Light:
     towards_sun = -np.asarray(condition.sun_direction, dtype=np.float64)
     helper = np.array([1.0, 0.0, 0.0]) if abs(towards_sun[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     x = np.cross(helper, towards_sun)
-    x /= np.linalg.norm(x)
+    x /= portable_norm(x)
     pose = np.eye(4)
     pose[:3, :3] = np.column_stack([x, np.cross(towards_sun, x), towards_sun])  # distant lights shine along -z
     return Light(SUN_NAME, "distant", pose, float(condition.sun_irradiance),

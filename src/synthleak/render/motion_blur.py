@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from synthleak.errors import ConfigError
+from synthleak.portable import inv3, matmul
 
 if TYPE_CHECKING:
     from synthleak.core.types import Camera
@@ -136,8 +137,8 @@ class _Flow:
     def homography(self, t: float) -> np.ndarray:
         """Index-coordinate homography taking an output pixel at time t to its mid-exposure source."""
         to_centre = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.5], [0.0, 0.0, 1.0]])
-        h = self.K @ self.rotation(t) @ np.linalg.inv(self.K)
-        return np.linalg.inv(to_centre) @ h @ to_centre
+        h = matmul(matmul(self.K, self.rotation(t)), inv3(self.K))  # Python floats: the same bits on every CPU
+        return matmul(matmul(inv3(to_centre), h), to_centre)
 
     def maps(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """(map_x, map_y) float32 source index coordinates of every (sub-sampled) output pixel at time t."""

@@ -20,9 +20,10 @@ import functools
 import numpy as np
 
 from synthleak.assets.mesh import ObjectMesh
+from synthleak.assets.textures import make_texture
 from synthleak.core.types import Light
 from synthleak.geometry.poses import make_pose
-from synthleak.scene.attacker_settings import draw_setting, setting_texture
+from synthleak.scene.attacker_settings import OWN_KINDS, draw_setting, setting_texture
 from synthleak.scene.plan import ATTACKER_TARGET_ID, AttackerPlan
 from synthleak.scene.room import RoomShell, build_room_shell, ceiling_lights, f32
 from synthleak.scene.shell_geometry import planar_box
@@ -48,9 +49,12 @@ def hall_shell(seed: int, style_index: int = 0) -> tuple[ShellStyle, RoomShell]:
 
 
 def _prop_texture(style: ShellStyle, surface: str, rng: np.random.Generator, size: int, span: float) -> np.ndarray:
-    """A prop's texture: a (kind, colour) of the style's finish (a setting's own kinds included)."""
+    """A prop's texture: a (kind, colour) of the style's finish: a setting's own kind, or (the former hall's
+    styles) a kind of :func:`~synthleak.assets.textures.make_texture`."""
     kind, colour = style.finishes[surface].draw(rng)
-    return setting_texture(kind, colour, rng, size, span)
+    if kind in OWN_KINDS:
+        return setting_texture(kind, colour, rng, size, span)
+    return make_texture(kind, rng, colour, size, feature_scale=float(np.clip(1.5 / max(span, 0.5), 0.3, 1.0)))
 
 
 def _prop(

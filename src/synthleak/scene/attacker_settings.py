@@ -11,11 +11,14 @@ pipeline supports: one attacker stage renders one sequence ``attackers/<id>`` (`
 prepared once per renderer, and the local models read that one sequence; so the variation lives inside the
 one stage, wall by wall.
 
-Nothing of a setting's surfaces is shared with the rooms' shells: the textures come from their own seed
-stream (``make_rng(seed, "attacker_setting", object_id, surface)``, never the rooms'), and either from this
-module's own generators (paper sweep, brick, paving, shop shelves, sky) or from
-:func:`synthleak.assets.textures.make_texture` with palettes of their own (every colour at least
-:data:`MIN_PALETTE_DISTANCE` from each room shell colour of the same texture kind).
+Nothing of a setting's surfaces is shared with the rooms: the textures come from their own seed stream
+(``make_rng(seed, "attacker_setting", object_id, surface)``, never the rooms') and from this module's own
+generators only (:data:`OWN_KINDS`: paper sweep, brick, paving, shop shelves, sky, epoxy floor, corrugated
+cladding, carpet, paint), none of :func:`synthleak.assets.textures.make_texture`'s, which the rooms' shells and
+furniture use. Colours alone did not keep them apart (SETTINGS_FORMAT 1 drew concrete, metal, fabric, marble,
+plastic and pattern from that module with palettes of their own): grey-level features do not see colour, and on
+study-small 69 % of the query-side inliers of the attacker queries localized on a room's shell lay on those
+floors and walls (``benchmarks/shell_inliers.py``).
 """
 
 from __future__ import annotations
@@ -26,8 +29,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from synthleak import portable
 from synthleak.assets.mesh import ObjectMesh
-from synthleak.assets.textures import make_texture
 from synthleak.geometry.poses import make_pose
 from synthleak.scene.room import SHELL_IDS, SLAB_THICKNESS, WALL_NAMES, WALL_THICKNESS, RoomShell, room_walls
 from synthleak.scene.shell_geometry import box_with_holes, planar_box
@@ -36,9 +39,7 @@ from synthleak.scene.styles import Finish, ShellStyle
 from synthleak.seeding import make_rng
 
 Colour = tuple[float, float, float]
-MIN_PALETTE_DISTANCE = 0.12
-"""Least RGB distance between a setting colour and any room shell colour of the same (shared) texture kind."""
-SETTINGS_FORMAT = 1
+SETTINGS_FORMAT = 2
 """Part of the attacker stages' skip keys: bump when a setting's output changes for the same seed."""
 
 
@@ -127,14 +128,73 @@ def _sky(rng: np.random.Generator, base: Colour, size: int) -> np.ndarray:
     return _u8(img)
 
 
+def _epoxy(rng: np.random.Generator, base: Colour, size: int) -> np.ndarray:
+    """A poured epoxy floor: a smooth coat with broad mottling, painted safety lines and long tyre scuffs (no
+    pores or flecks: a room's concrete, plastic and fabric share their speckle, this floor does not)."""
+    lum = 1.0 + 0.05 * _smooth(rng, size, 5) + 0.02 * _smooth(rng, size, 24)
+    img = lum[..., None] * np.asarray(base, np.float32)
+    paint = np.asarray((0.86, 0.74, 0.18) if rng.random() < 0.6 else (0.90, 0.90, 0.88), np.float32)
+    for _ in range(int(rng.integers(1, 3))):  # long straight painted lane lines
+        width = int(rng.uniform(0.012, 0.025) * size)
+        at = int(rng.uniform(0.15, 0.85) * size)
+        if rng.random() < 0.5:
+            img[:, at:at + width] = paint
+        else:
+            img[at:at + width, :] = paint
+    scuffs = np.zeros((size, size), np.float32)
+    for _ in range(int(rng.integers(3, 7))):  # tyre scuffs: wide soft arcs
+        centre = tuple(int(v) for v in rng.uniform(-0.5, 1.5, 2) * size)
+        radius = int(rng.uniform(0.4, 1.2) * size)
+        start = float(rng.uniform(0, 360))
+        cv2.ellipse(scuffs, centre, (radius, radius), 0.0, start, start + float(rng.uniform(20, 60)), 1.0,
+                    max(2, size // 90), cv2.LINE_AA)  # anti-aliased: no blur pass (GaussianBlur is CPU-dispatched)
+    return _u8(img * (1.0 - 0.25 * scuffs[..., None]))
+
+
+def _cladding(rng: np.random.Generator, base: Colour, size: int) -> np.ndarray:
+    """Corrugated metal cladding: vertical ribs, horizontal panel seams and broad weathering."""
+    xx = np.arange(size, dtype=np.float32)[None, :]
+    period = size / float(rng.integers(28, 44))
+    ribs = 0.5 + 0.5 * portable.cos(2 * np.pi * xx / period)  # numpy's own cos: other bits on another CPU
+    lum = 0.88 + 0.16 * ribs + 0.05 * _smooth(rng, size, 4)
+    img = np.repeat(lum, size, axis=0) if lum.shape[0] == 1 else lum
+    img = img[..., None] * np.asarray(base, np.float32)
+    panels = int(rng.integers(2, 4))
+    for k in range(1, panels):  # seams between sheet rows
+        y = int(k * size / panels + rng.uniform(-0.02, 0.02) * size)
+        img[max(0, y - 2):y + 2] *= 0.55
+    return _u8(img)
+
+
+def _carpet(rng: np.random.Generator, base: Colour, size: int) -> np.ndarray:
+    """A loop-pile carpet: a pile finer than a camera pixel at orbit distance and soft wear patches."""
+    pile = rng.standard_normal((size, size)).astype(np.float32)
+    lum = 1.0 + 0.03 * pile + 0.06 * _smooth(rng, size, 6)
+    return _u8(lum[..., None] * np.asarray(base, np.float32))
+
+
+def _paint(rng: np.random.Generator, base: Colour, size: int) -> np.ndarray:
+    """A painted wall: roller marks (soft vertical streaks) on an even coat."""
+    streaks = cv2.resize(rng.standard_normal((1, int(rng.integers(30, 60)))).astype(np.float32), (size, size),
+                         interpolation=cv2.INTER_CUBIC)
+    lum = 1.0 + 0.012 * streaks + 0.02 * _smooth(rng, size, 3)
+    return _u8(lum[..., None] * np.asarray(base, np.float32))
+
+
 OWN_KINDS: dict[str, Callable[[np.random.Generator, Colour, int], np.ndarray]] = {
     "sweep": _sweep,
     "brick": _brick,
     "paving": _paving,
     "shelves": _shelves,
     "sky": _sky,
+    "epoxy": _epoxy,
+    "cladding": _cladding,
+    "carpet": _carpet,
+    "paint": _paint,
 }
-"""Texture kinds only the settings use (none of :mod:`synthleak.assets.textures`)."""
+"""The settings' texture kinds: every surface of a setting draws from these, none from
+:mod:`synthleak.assets.textures` (whose generators the rooms' shells and furniture share, colours aside: grey
+features do not see colour)."""
 
 
 # ----------------------------------------------------------------------------------------------- the settings
@@ -176,25 +236,25 @@ def _f(kinds: tuple[str, ...], *colours: Colour) -> Finish:
 
 SETTING_KINDS: tuple[SettingKind, ...] = (
     SettingKind("inventory_hall", (11.0, 14.0), (9.0, 12.0), (4.2, 5.0), {
-        "floor": _f(("concrete",), (0.30, 0.40, 0.42), (0.52, 0.46, 0.36)),  # epoxy teal / dusty ochre
-        "wall": _f(("metal", "metal", "shelves", "shelves"), (0.26, 0.36, 0.52), (0.62, 0.34, 0.22), (0.40, 0.46, 0.30),
-                   (0.75, 0.75, 0.70)),
-        "ceiling": _f(("metal",), (0.62, 0.60, 0.52)),
-        "pedestal": _f(("plastic", "rubber"), (0.20, 0.40, 0.70), (0.25, 0.25, 0.28)),
+        "floor": _f(("epoxy",), (0.30, 0.40, 0.42), (0.52, 0.46, 0.36)),  # epoxy teal / dusty ochre
+        "wall": _f(("cladding", "cladding", "shelves", "shelves"), (0.26, 0.36, 0.52), (0.62, 0.34, 0.22),
+                   (0.40, 0.46, 0.30), (0.75, 0.75, 0.70)),
+        "ceiling": _f(("cladding",), (0.62, 0.60, 0.52)),
+        "pedestal": _f(("paint", "paint"), (0.20, 0.40, 0.70), (0.25, 0.25, 0.28)),
         "panel": _f(("sweep",), (0.86, 0.86, 0.84)),
     }, (0.88, 0.94, 1.0), (14.0, 22.0), (0.08, 0.12), (4, 7)),
     SettingKind("home", (7.5, 9.0), (7.0, 8.5), (2.6, 3.0), {
-        "floor": _f(("fabric", "fabric", "marble"), (0.45, 0.22, 0.20), (0.30, 0.36, 0.50), (0.92, 0.90, 0.86)),
-        "wall": _f(("pattern", "pattern", "brick"), (0.64, 0.54, 0.76), (0.52, 0.70, 0.56), (0.74, 0.40, 0.30)),
+        "floor": _f(("carpet", "carpet", "epoxy"), (0.45, 0.22, 0.20), (0.30, 0.36, 0.50), (0.92, 0.90, 0.86)),
+        "wall": _f(("paint", "paint", "brick"), (0.64, 0.54, 0.76), (0.52, 0.70, 0.56), (0.74, 0.40, 0.30)),
         "ceiling": _f(("sweep",), (0.96, 0.95, 0.92)),
-        "pedestal": _f(("leather", "marble"), (0.28, 0.16, 0.10), (0.80, 0.80, 0.78)),
-        "panel": _f(("pattern",), (0.40, 0.55, 0.70)),
+        "pedestal": _f(("paint", "paint"), (0.28, 0.16, 0.10), (0.80, 0.80, 0.78)),
+        "panel": _f(("paint",), (0.40, 0.55, 0.70)),
     }, (1.0, 0.86, 0.70), (5.0, 9.0), (0.05, 0.09), (2, 4)),
     SettingKind("shop_floor", (10.0, 13.0), (8.0, 11.0), (3.4, 4.2), {
-        "floor": _f(("plastic", "marble"), (0.80, 0.78, 0.70), (0.34, 0.34, 0.38)),
+        "floor": _f(("epoxy", "carpet"), (0.80, 0.78, 0.70), (0.34, 0.34, 0.38)),
         "wall": _f(("shelves",), (0.85, 0.85, 0.88), (0.30, 0.30, 0.32), (0.70, 0.58, 0.40)),
         "ceiling": _f(("sweep",), (0.90, 0.92, 0.94)),
-        "pedestal": _f(("plastic",), (0.95, 0.95, 0.95), (0.80, 0.15, 0.15)),
+        "pedestal": _f(("paint",), (0.95, 0.95, 0.95), (0.80, 0.15, 0.15)),
         "panel": _f(("shelves",), (0.90, 0.90, 0.90)),
     }, (0.96, 0.98, 1.0), (9.0, 15.0), (0.08, 0.12), (4, 6)),
     SettingKind("photo_studio", (7.5, 9.0), (7.5, 9.0), (3.0, 3.6), {
@@ -205,8 +265,8 @@ SETTING_KINDS: tuple[SettingKind, ...] = (
         "panel": _f(("sweep",), (0.94, 0.94, 0.93)),
     }, (1.0, 0.98, 0.96), (10.0, 16.0), (0.10, 0.16), (3, 5)),
     SettingKind("courtyard", (10.0, 14.0), (10.0, 14.0), (7.0, 9.0), {
-        "floor": _f(("paving", "soil"), (0.62, 0.58, 0.52), (0.50, 0.40, 0.30)),
-        "wall": _f(("brick", "foliage", "brick"), (0.62, 0.30, 0.22), (0.14, 0.30, 0.12), (0.55, 0.52, 0.48)),
+        "floor": _f(("paving",), (0.62, 0.58, 0.52), (0.50, 0.40, 0.30)),
+        "wall": _f(("brick", "paint", "brick"), (0.62, 0.30, 0.22), (0.80, 0.76, 0.66), (0.55, 0.52, 0.48)),
         "ceiling": _f(("sky",), (0.62, 0.74, 0.90)),
         "pedestal": _f(("paving",), (0.60, 0.60, 0.58)),
         "panel": _f(("brick",), (0.58, 0.34, 0.26)),
@@ -216,11 +276,13 @@ SETTING_KINDS: tuple[SettingKind, ...] = (
 
 
 def setting_texture(kind: str, colour: Colour, rng: np.random.Generator, size: int, span: float) -> np.ndarray:
-    """One surface's texture: the settings' own generator of ``kind``, else ``make_texture``."""
-    if kind in OWN_KINDS:
+    """One surface's texture: the settings' own generator of ``kind`` (:data:`OWN_KINDS`); ``span`` (metres) is
+    unused by them (kept for callers that texture a surface of a known size)."""
+    try:
         return OWN_KINDS[kind](rng, colour, size)
-    feature_scale = float(np.clip(1.5 / max(span, 0.5), 0.3, 1.0))
-    return make_texture(kind, rng, colour, size, feature_scale=feature_scale)
+    except KeyError:
+        raise ValueError(f"attacker setting texture kind {kind!r} is not a setting's own "
+                         f"(known: {', '.join(OWN_KINDS)})") from None
 
 
 @dataclass
