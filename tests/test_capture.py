@@ -19,6 +19,7 @@ from synthleak.render.capture import (
     Defocus,
     Exposure,
     Jpeg,
+    NoiseReduction,
     Resize,
     Sensor,
     ToneCurve,
@@ -144,6 +145,39 @@ def test_noise_in_the_photo_grows_with_iso() -> None:
         assert values.var() == pytest.approx(a * level + b + step**2 / 12, rel=0.1)
         stds.append(values.std())
     assert stds[0] < stds[1] < stds[2]
+
+
+def test_burst_merge_divides_the_noise_variance_and_chroma_nr_keeps_luminance() -> None:
+    """A merge of N frames: the photo's linear noise variance on a grey patch is 1/N of one frame's (HDR+,
+    Hasinoff et al. 2016); chroma NR then cuts the colour noise (channel minus luminance) but not the mean."""
+    level, base_iso, ref, iso = 0.2, 100.0, 0.01, 3200.0
+    exposure = Exposure(reference_shutter_s=ref, manual_iso=iso, manual_shutter_s=ref * base_iso / iso)
+    sensor = Sensor(shot_noise=1e-4, bayer=False, bit_depth=16, black_level=0.05, wb_gain_red=1.0, wb_gain_blue=1.0)
+    one = CaptureParams(base_iso=base_iso, exposure=exposure, sensor=sensor)
+    variances = {}
+    for frames in (1, 4):
+        params = replace(one, noise_reduction=NoiseReduction(merge_frames=frames))
+        photo = capture(flat(level, 96, 96), params, seed=5)
+        assert photo.record.get("merge_frames", 1) == frames
+        variances[frames] = linear(photo.rgb).var()
+    assert variances[4] == pytest.approx(variances[1] / 4, rel=0.15)
+    plain = linear(capture(flat(level, 96, 96), one, seed=6).rgb)
+    smooth = capture(flat(level, 96, 96), replace(one, noise_reduction=NoiseReduction(chroma_sigma_px=2.0)), seed=6)
+    assert "chroma_denoise" in smooth.record["effects"]
+    smooth_lin = linear(smooth.rgb)
+
+    def chroma(x: np.ndarray) -> float:
+        return float((x - x.mean(axis=2, keepdims=True)).std())
+
+    assert chroma(smooth_lin) < 0.5 * chroma(plain)
+    assert smooth_lin.mean() == pytest.approx(plain.mean(), rel=0.01)
+
+
+def test_phone_profiles_merge_bursts_and_denoise_chroma() -> None:
+    for name in ("phone", "phone-low-light", "web-photo"):
+        nr = devices.profile(name).noise_reduction
+        assert nr is not None and nr.merge_frames >= 4 and nr.chroma_sigma_px > 0, name
+    assert devices.profile("ideal").noise_reduction is None
 
 
 def grey_texture(scale: float, h: int = 64, w: int = 64) -> np.ndarray:
@@ -306,6 +340,9 @@ def test_pyrender_output_linearises_by_gamma_2_2() -> None:
         (lambda: Jpeg(quality=120), "jpeg.quality"),
         (lambda: Jpeg(subsampling="4:1:1"), "jpeg.subsampling"),
         (lambda: Resize(longest_px=0), "resize.longest_px"),
+        (lambda: NoiseReduction(merge_frames=0), "noise_reduction.merge_frames"),
+        (lambda: NoiseReduction(merge_frames=2.5), "noise_reduction.merge_frames"),
+        (lambda: NoiseReduction(chroma_sigma_px=-1.0), "noise_reduction.chroma_sigma_px"),
         (lambda: Vignetting(corner_stops=-1.0), "vignetting.corner_stops"),
         (lambda: ToneCurve(strength=1.5), "tone_curve.strength"),
         (lambda: Defocus(f_number=0.0, focal_length_mm=5.0, sensor_width_mm=6.0), "defocus.f_number"),

@@ -359,6 +359,30 @@ class ToneCurve:
 
 
 @dataclass(frozen=True)
+class NoiseReduction:
+    """The ISP's noise reduction, as phone cameras apply it before the JPEG. First a burst merge: HDR+ (Hasinoff
+    et al. 2016, "Burst photography for high dynamic range and low-light imaging on mobile cameras", SIGGRAPH
+    Asia) aligns and merges 2-8 raw frames, so the merged raw has ``1 / merge_frames`` the noise variance of one
+    frame (modelled as an ideal merge of frames of the chosen exposure: the AE's shutter and ISO are per frame;
+    motion within the burst is not modelled). Then chroma noise reduction: the colour-difference planes (each
+    linear channel minus the luminance) blurred by a Gaussian of ``chroma_sigma_px`` (scipy.ndimage: the same
+    bits on every CPU), leaving luminance detail to the merge. Without it a photo at ISO 2000 carries the raw
+    sensor's full colour noise, which no phone JPEG shows."""
+
+    merge_frames: int = 1
+    """Raw frames merged (1: a single frame)."""
+    chroma_sigma_px: float = 0.0
+    """Gaussian sigma (px) of the chroma blur; 0: none."""
+    SECTION: ClassVar[str] = "noise_reduction"
+
+    def __post_init__(self) -> None:
+        frames = self.merge_frames
+        if isinstance(frames, bool) or not isinstance(frames, int) or not 1 <= frames <= 16:
+            _fail(self.SECTION, "merge_frames", "must be an integer in [1, 16]", self.merge_frames)
+        _in_range(self.SECTION, "chroma_sigma_px", self.chroma_sigma_px, 0.0, 10.0)
+
+
+@dataclass(frozen=True)
 class Jpeg:
     """JPEG compression with Pillow (libjpeg baseline: no ``optimize``, not progressive, fixed chroma
     subsampling, so the bytes depend on the pixels and the libjpeg build only)."""
@@ -411,6 +435,9 @@ class CaptureParams:
     sensor: Sensor | None = None
     color_matrix: ColorMatrix | None = None
     white_balance: WhiteBalance | None = None
+    noise_reduction: NoiseReduction | None = None
+    """The ISP's burst merge (noise variance / frames, at the noise step) and chroma noise reduction (after the
+    colour correction)."""
     tone_curve: ToneCurve | None = None
     jpeg: Jpeg | None = None
     """In-camera JPEG."""
@@ -426,8 +453,9 @@ class CaptureParams:
         kinds = {
             "defocus": Defocus, "motion_blur": MotionBlur, "distortion": Distortion,
             "vignetting": Vignetting, "exposure": Exposure,
-            "sensor": Sensor, "color_matrix": ColorMatrix, "white_balance": WhiteBalance, "tone_curve": ToneCurve,
-            "jpeg": Jpeg, "resize": Resize, "recompress": Jpeg,
+            "sensor": Sensor, "color_matrix": ColorMatrix, "white_balance": WhiteBalance,
+            "noise_reduction": NoiseReduction, "tone_curve": ToneCurve, "jpeg": Jpeg, "resize": Resize,
+            "recompress": Jpeg,
         }  # fmt: skip
         for name, kind in kinds.items():
             value = getattr(self, name)
@@ -447,7 +475,7 @@ class CaptureParams:
 
 EFFECT_FIELDS = (
     "defocus", "motion_blur", "distortion", "vignetting", "exposure", "sensor", "color_matrix", "white_balance",
-    "tone_curve", "jpeg", "resize", "recompress",
+    "noise_reduction", "tone_curve", "jpeg", "resize", "recompress",
 )  # fmt: skip
 """The effect fields of :class:`CaptureParams`, in the order they are applied."""
 
@@ -679,6 +707,20 @@ def add_sensor_noise(raw: np.ndarray, a: float, b: float, rng: np.random.Generat
     return (photons.astype(np.float32) * np.float32(a) + read * np.float32(math.sqrt(b))).astype(np.float32)
 
 
+def chroma_denoise(x: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Linear RGB ``x`` with its colour-difference planes (``channel - Y``) blurred by a Gaussian of ``sigma_px``
+    and its luminance Y kept (:class:`NoiseReduction`); mirrored borders, float64 sums (scipy.ndimage)."""
+    from scipy.ndimage import gaussian_filter
+
+    luma = LUMA.astype(np.float32)
+    y = x[..., 0] * luma[0] + x[..., 1] * luma[1] + x[..., 2] * luma[2]
+    out = np.empty_like(x)
+    for c in range(3):
+        out[..., c] = y + gaussian_filter((x[..., c] - y).astype(np.float64), sigma_px, mode="reflect").astype(
+            np.float32)
+    return out
+
+
 def mosaic(cam: np.ndarray) -> np.ndarray:
     """RGGB Bayer mosaic (H, W) of a camera-RGB image (H, W, 3): R at (even, even), B at (odd, odd)."""
     raw = np.empty(cam.shape[:2], dtype=cam.dtype)
@@ -897,8 +939,9 @@ def capture(
             done("mosaic")
         if sensor.noise:
             a, b = noise_params(sensor, iso, params.base_iso)
-            raw = add_sensor_noise(raw, a, b, rng)
-            done("noise", noise_a=a, noise_b=b)
+            frames = params.noise_reduction.merge_frames if params.noise_reduction is not None else 1
+            raw = add_sensor_noise(raw, a / frames, b / frames, rng)  # the merged burst: variance / frames
+            done("noise", noise_a=a, noise_b=b, **({"merge_frames": frames} if frames > 1 else {}))
         dn, black, white = _adc(raw, sensor)
         done("adc", black_dn=black, white_dn=white)
         if sensor.bayer:
@@ -925,6 +968,9 @@ def capture(
     if not np.array_equal(to_rgb, np.eye(3)):
         x = apply_matrix3(x, to_rgb)
         done("white_balance_ccm")
+    if params.noise_reduction is not None and params.noise_reduction.chroma_sigma_px > 0:
+        x = chroma_denoise(x, params.noise_reduction.chroma_sigma_px)
+        done("chroma_denoise", chroma_sigma_px=params.noise_reduction.chroma_sigma_px)
 
     # ---- tone curve and sRGB encoding: one exact LUT pass (see encode_8bit)
     strength = 0.0 if params.tone_curve is None else params.tone_curve.strength

@@ -27,6 +27,7 @@ from synthleak.render.capture import (
     Distortion,
     Exposure,
     Jpeg,
+    NoiseReduction,
     Resize,
     Sensor,
     ToneCurve,
@@ -87,6 +88,8 @@ PHONE = CaptureParams(
     color_matrix=MEAN_CCM,
     white_balance=WhiteBalance(illuminant_k=4700.0, error_mired=0.0),  # Infinigen's mean lamp CCT
     tone_curve=ToneCurve(strength=1.0),  # Brooks et al.'s smoothstep
+    # the ISP: a burst merge as HDR+ does by default (Hasinoff et al. 2016: 2-8 frames; assumed 6) and chroma NR
+    noise_reduction=NoiseReduction(merge_frames=6, chroma_sigma_px=1.5),
     jpeg=Jpeg(quality=95, subsampling="4:2:0"),  # high in-camera quality (assumed), 4:2:0 as cameras write
     # the residual after the ISP's distortion correction of a phone main camera: mild barrel (assumed); each
     # device draws its own (PHONE_VARIATION)
@@ -104,6 +107,7 @@ PHONE_LOW_LIGHT = replace(
     vignetting=Vignetting(corner_stops=0.8),  # ISPs correct less shading at high gain, to spare noise (assumed)
     motion_blur=MotionBlur(angular_velocity_deg_s=hand_shake(1.0, np.ones(3))),  # and twice the shutter time
     white_balance=WhiteBalance(illuminant_k=2700.0, error_mired=-15.0),  # 2700 K warm-white bulb; AWB keeps it warm
+    noise_reduction=NoiseReduction(merge_frames=8, chroma_sigma_px=2.0),  # HDR+'s longest default burst (assumed)
 )
 
 WEB_PHOTO = CaptureParams(
@@ -123,6 +127,8 @@ WEB_PHOTO = CaptureParams(
     color_matrix=MEAN_CCM,
     white_balance=WhiteBalance(illuminant_k=4700.0),
     tone_curve=ToneCurve(strength=0.8),
+    # web photos come from phones (burst merge, chroma NR) and cameras (in-camera NR): a middle value (assumed)
+    noise_reduction=NoiseReduction(merge_frames=4, chroma_sigma_px=1.5),
     jpeg=Jpeg(quality=92),
     distortion=Distortion(k1=-0.05, k2=0.01),  # any camera, uncorrected or not (assumed); drawn per photo
     resize=Resize(longest_px=1536),  # services serve 1024-2048 px; never enlarged
@@ -295,7 +301,9 @@ def draw_device(profile_name: str, seed: int) -> CaptureParams:
             s = replace(s, shot_noise=log_uniform(v.shot_noise, u[2]))
         out = replace(out, sensor=s)
     if v.random_ccm:
-        xyz_to_cam = np.tensordot(weights / weights.sum(), np.array(XYZ_TO_CAM_BROOKS), axes=1)
+        w = weights / weights.sum()  # the convex combination term by term (tensordot is a BLAS product)
+        terms = [w[k] * np.array(XYZ_TO_CAM_BROOKS[k]) for k in range(4)]
+        xyz_to_cam = ((terms[0] + terms[1]) + terms[2]) + terms[3]
         out = replace(out, color_matrix=ColorMatrix(tuple(tuple(r) for r in xyz_to_cam.tolist())))
     if v.vignetting_stops is not None:
         out = replace(out, vignetting=Vignetting(corner_stops=uniform(v.vignetting_stops, u[4])))
