@@ -167,3 +167,27 @@ def test_shell_share_of_a_ci_tiny_study(ci_tiny_study: Path):
     assert from_logs and from_logs[0]["n_localized_all"] > 0
     assert "localized on the room's shell" in (ci_tiny_study / "report.md").read_text()
     assert {o.get("setting") for o in index["attacker_objects"]} <= {k.name for k in SETTING_KINDS}
+
+
+def test_shell_inliers_benchmark_relocalizes_as_logged(ci_tiny_study: Path):
+    """``benchmarks/shell_inliers.py`` localizes every localized attacker query again (it raises if one does
+    not give the logged inliers) and splits the query-side inliers: the counts add up to the logs' inliers."""
+    import importlib.util
+    from collections import Counter
+
+    from synthleak.study import StudyPaths
+
+    path = Path(__file__).parents[1] / "benchmarks" / "shell_inliers.py"
+    spec = importlib.util.spec_from_file_location("shell_inliers", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    config = load_config("ci-tiny")
+    pairs: Counter = Counter()
+    split = module.server_split(StudyPaths(ci_tiny_study), config, "sift", pairs)
+    records = [q for log in sorted((ci_tiny_study / "queries" / "sift").glob("*/queries.jsonl"))
+               for q in read_query_log(log) if not q["genuine"] and q["success"]]
+    shell = [q for q in records if mostly_on_shell(q["inlier_instance_counts"])]
+    assert int(split.get("n_shell", 0)) == len(shell) and int(split.get("n_objects", 0)) == len(records) - len(shell)
+    assert int(split["shell"].sum()) == sum(q["num_inliers"] for q in shell) == sum(pairs.values())
+    assert int(split["objects"].sum()) == sum(q["num_inliers"] for q in records if q not in shell)
+    assert records and split["objects"][0] > 0  # look-alike localizations: inliers on the photographed object

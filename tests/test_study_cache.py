@@ -148,3 +148,19 @@ def test_force_sweep_redoes_only_the_sweep(ci_tiny_study: Path, tmp_path: Path, 
     counted.clear()
     run_study(config, study, progress=False)
     assert dict(counted) == {}
+
+
+def test_newer_code_formats_redo_the_renders(ci_tiny_study: Path, tmp_path: Path, counted: Counter,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """The render key names the code's stage, attacker-setting and (photographed studies) capture formats: a
+    folder rendered by older code is rendered again, not reused as if current (kept aside as ``dataset.<key>``)."""
+    import synthleak.scene.attacker_settings as settings
+    from synthleak.study.render import code_formats
+
+    assert [set(f) for f in code_formats(load_config("ci-tiny"))] == [{"stage_format", "settings_format"}]
+    assert {"capture_format"} in [set(f) for f in code_formats(load_config("ci-tiny-photo"))]
+    study = _copy(ci_tiny_study, tmp_path)
+    monkeypatch.setattr(settings, "SETTINGS_FORMAT", settings.SETTINGS_FORMAT + 1)
+    run_study(load_config("ci-tiny"), study, progress=False)
+    assert counted["frames"] > 0  # rendered again
+    assert list(study.glob("dataset.*"))  # the older renders kept aside

@@ -48,6 +48,10 @@ from synthleak.errors import ConfigError
 from synthleak.portable import apply_matrix3, inv3, matmul, snap
 from synthleak.render.motion_blur import MotionBlur
 
+CAPTURE_FORMAT = 2
+"""Version of the photographs for the same seed and profile: part of a study's render key when a capture is not
+``ideal`` (2: CPU-independent arithmetic and the ISP's noise reduction, 38edff6)."""
+
 # --------------------------------------------------------------------------------------------- colour science
 
 RGB_TO_XYZ = np.array(
