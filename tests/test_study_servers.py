@@ -139,3 +139,21 @@ def test_the_report_puts_utility_beside_leakage_per_server(ci_tiny_study: Path):
     assert row["placed_best"] >= row["placed_alg1"]
     assert (ci_tiny_study / "plots" / "utility_vs_leakage.png").stat().st_size > 10_000
     assert "## Utility and leakage per server" in (ci_tiny_study / "report.md").read_text()
+
+
+def test_the_servers_selection_is_not_part_of_a_servers_keys(ci_tiny_study: Path, tmp_path: Path):
+    """Naming the servers to run (``[localize] servers``) redoes nothing of the servers it keeps: their maps and
+    query logs keep their keys and bytes (the selection entered every map key before, so a narrowed list redid
+    every query)."""
+    out = tmp_path / "study"
+    shutil.copytree(ci_tiny_study, out)
+    base = load_config("ci-tiny")
+    config = dataclasses.replace(base, localize=dataclasses.replace(base.localize, profile=["strict", "hloc"],
+                                                                    servers=["sift"]))
+    rooms = sorted(p.name for p in (out / "maps" / "sift").iterdir() if p.is_dir())
+    keys = {room: (done_key(out / "maps" / "sift" / room), done_key(out / "queries" / "sift" / room))
+            for room in rooms}
+    run_study(config, out, progress=False)
+    assert not (out / "maps" / "sift@hloc").exists()
+    for room in rooms:
+        assert (done_key(out / "maps" / "sift" / room), done_key(out / "queries" / "sift" / room)) == keys[room]

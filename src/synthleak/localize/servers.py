@@ -39,8 +39,9 @@ class Server:
 
     def localize(self, localize: Any) -> Any:
         """``localize`` (a :class:`~synthleak.config.LocalizeConfig`) as this one server runs it: its single profile
-        and representation."""
-        return dataclasses.replace(localize, profile=self.profile, representation=self.representation)
+        and representation, and no study-level ``servers`` selection (which servers a study runs is not part of
+        any one server's map or cache keys)."""
+        return dataclasses.replace(localize, profile=self.profile, representation=self.representation, servers=[])
 
 
 def study_servers(localize: Any) -> list[Server]:
