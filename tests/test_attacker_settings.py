@@ -96,7 +96,7 @@ def test_settings_draw_only_their_own_texture_generators():
         for surface, finish in setting.finishes.items():
             assert set(finish.kinds) <= set(OWN_KINDS), (setting.name, surface, finish.kinds)
     with pytest.raises(ValueError, match="'concrete' is not a setting's own"):
-        setting_texture("concrete", (0.5, 0.5, 0.5), np.random.default_rng(0), 64, 4.0)
+        setting_texture("concrete", (0.5, 0.5, 0.5), np.random.default_rng(0), 64)
 
 
 def test_no_attacker_surface_equals_a_room_shell_texture(ci_tiny_specs):

@@ -249,6 +249,16 @@ class RenderConfig:
     """Light of the attacker's orbit photos (its own condition when ``varied``)."""
     notes: str = ""
 
+    @property
+    def captures(self) -> dict[str, str]:
+        """The camera profile of each kind of capture: ``map``, ``genuine``, ``attacker``."""
+        return {"map": self.capture_map, "genuine": self.capture_genuine, "attacker": self.capture_attacker}
+
+    @property
+    def photographed(self) -> bool:
+        """True when any kind of capture goes through a camera profile other than ``ideal``."""
+        return any(profile != "ideal" for profile in self.captures.values())
+
 
 @dataclass(frozen=True)
 class LocalizeConfig:

@@ -673,10 +673,14 @@ def vignetting_map(height: int, width: int, corner_stops: float) -> np.ndarray:
 def meter(x: np.ndarray) -> float:
     """The auto-exposure meter: median relative luminance on a 4x-subsampled grid (AE statistics are low
     resolution)."""
-    sub = np.asarray(x[::4, ::4], dtype=np.float64)
-    luma = LUMA.astype(np.float64)
-    y = sub[..., 0] * luma[0] + sub[..., 1] * luma[1] + sub[..., 2] * luma[2]  # elementwise: the same bits on
-    return float(np.median(y))  # every CPU (``@`` is a BLAS product)
+    return float(np.median(luminance(np.asarray(x[::4, ::4], dtype=np.float64))))
+
+
+def luminance(x: np.ndarray) -> np.ndarray:
+    """Relative luminance Y of linear RGB ``x`` (H, W, 3) in ``x``'s float type, as elementwise products and sums
+    in a fixed order: the same bits on every CPU (``x @ LUMA`` is a BLAS product)."""
+    luma = LUMA.astype(x.dtype)
+    return x[..., 0] * luma[0] + x[..., 1] * luma[1] + x[..., 2] * luma[2]
 
 
 def choose_exposure(metered: float, params: Exposure, base_iso: float) -> dict[str, float]:
@@ -716,8 +720,7 @@ def chroma_denoise(x: np.ndarray, sigma_px: float) -> np.ndarray:
     and its luminance Y kept (:class:`NoiseReduction`); mirrored borders, float64 sums (scipy.ndimage)."""
     from scipy.ndimage import gaussian_filter
 
-    luma = LUMA.astype(np.float32)
-    y = x[..., 0] * luma[0] + x[..., 1] * luma[1] + x[..., 2] * luma[2]
+    y = luminance(x)
     out = np.empty_like(x)
     for c in range(3):
         out[..., c] = y + gaussian_filter((x[..., c] - y).astype(np.float64), sigma_px, mode="reflect").astype(

@@ -549,9 +549,8 @@ profile other than ``ideal`` also ``capture``: the profile of map, genuine and a
         "files": {p.relative_to(out_dir).as_posix(): sha256_file(p) for p in files},
     }
     rc = config.render
-    capture = {"map": rc.capture_map, "genuine": rc.capture_genuine, "attacker": rc.capture_attacker}
-    if any(p != IDEAL for p in capture.values()):  # an all-ideal manifest keeps the bytes it had before capture
-        manifest["capture"] = capture
+    if rc.photographed:  # an all-ideal manifest keeps the bytes it had before capture
+        manifest["capture"] = rc.captures
     lighting = {"map": rc.light_map, "genuine": rc.light_genuine, "attacker": rc.light_attacker}
     if any(v != SAME for v in lighting.values()):  # likewise: an all-"same" manifest is unchanged
         manifest["lighting"] = lighting

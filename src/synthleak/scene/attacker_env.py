@@ -20,12 +20,11 @@ import functools
 import numpy as np
 
 from synthleak.assets.mesh import ObjectMesh
-from synthleak.assets.textures import make_texture
 from synthleak.core.types import Light
 from synthleak.geometry.poses import make_pose
 from synthleak.scene.attacker_settings import OWN_KINDS, draw_setting, setting_texture
 from synthleak.scene.plan import ATTACKER_TARGET_ID, AttackerPlan
-from synthleak.scene.room import RoomShell, build_room_shell, ceiling_lights, f32
+from synthleak.scene.room import RoomShell, build_room_shell, ceiling_lights, f32, surface_texture
 from synthleak.scene.shell_geometry import planar_box
 from synthleak.scene.spec import PlacedObject, SceneSpec
 from synthleak.scene.styles import ShellStyle, attacker_styles
@@ -53,8 +52,8 @@ def _prop_texture(style: ShellStyle, surface: str, rng: np.random.Generator, siz
     styles) a kind of :func:`~synthleak.assets.textures.make_texture`."""
     kind, colour = style.finishes[surface].draw(rng)
     if kind in OWN_KINDS:
-        return setting_texture(kind, colour, rng, size, span)
-    return make_texture(kind, rng, colour, size, feature_scale=float(np.clip(1.5 / max(span, 0.5), 0.3, 1.0)))
+        return setting_texture(kind, colour, rng, size)
+    return surface_texture(kind, colour, rng, size, span)
 
 
 def _prop(

@@ -275,9 +275,8 @@ SETTING_KINDS: tuple[SettingKind, ...] = (
 """The kinds a setting is drawn from (uniformly, per attacker object)."""
 
 
-def setting_texture(kind: str, colour: Colour, rng: np.random.Generator, size: int, span: float) -> np.ndarray:
-    """One surface's texture: the settings' own generator of ``kind`` (:data:`OWN_KINDS`); ``span`` (metres) is
-    unused by them (kept for callers that texture a surface of a known size)."""
+def setting_texture(kind: str, colour: Colour, rng: np.random.Generator, size: int) -> np.ndarray:
+    """One surface's texture: the settings' own generator of ``kind`` (:data:`OWN_KINDS`)."""
     try:
         return OWN_KINDS[kind](rng, colour, size)
     except KeyError:
@@ -296,12 +295,12 @@ class Setting:
     """surface (floor, ceiling, wall_south, ...) -> (texture kind, colour)."""
 
 
-def draw_surface(setting: SettingKind, surface: str, seed: int, object_id: str, name: str, size: int,
-                 span: float) -> tuple[np.ndarray, str, Colour]:
+def draw_surface(setting: SettingKind, surface: str, seed: int, object_id: str, name: str,
+                 size: int) -> tuple[np.ndarray, str, Colour]:
     """Texture, kind and colour of one surface ``name`` (a finish ``surface``), from its own seed stream."""
     rng = make_rng(seed, "attacker_setting", object_id, name)
     kind, colour = setting.finishes[surface].draw(rng)
-    return setting_texture(kind, colour, rng, size, span), kind, colour
+    return setting_texture(kind, colour, rng, size), kind, colour
 
 
 def min_room_size(extents: np.ndarray) -> float:
@@ -335,14 +334,14 @@ def draw_setting(seed: int, object_id: str, target_extents: np.ndarray, texture_
         ext = np.array([x + 2 * t, y + 2 * t, s])
         lo, hi = np.array([-ext[0] / 2, -ext[1] / 2, 0.0]), np.array([ext[0] / 2, ext[1] / 2, s])
         tex, tkind, colour = draw_surface(kind, name, seed, object_id, name,
-                                          texture_size if name == "floor" else texture_size // 2, max(x, y))
+                                          texture_size if name == "floor" else texture_size // 2)
         surfaces[name] = (tkind, colour)
         part = planar_box(name, lo, hi, tex, lo, hi, roughness=0.7 if name == "floor" else 0.9)
         pieces.append(piece(name, part, make_pose(np.eye(3), [0, 0, z]), "none", ext))
     for name in WALL_NAMES:
         wall = walls[name]
         extra = t if name in ("wall_south", "wall_north") else 0.0
-        tex, tkind, colour = draw_surface(kind, "wall", seed, object_id, name, texture_size, max(x, y))
+        tex, tkind, colour = draw_surface(kind, "wall", seed, object_id, name, texture_size)
         surfaces[name] = (tkind, colour)
         part = box_with_holes(name, wall.length, t, h, [], tex, x_extra=extra, roughness=0.9)
         pose = wall.world_from_wall @ make_pose(np.eye(3), [0.0, -t / 2, 0.0])

@@ -99,7 +99,13 @@ def shell_texture(
     style: ShellStyle, surface: str, rng: np.random.Generator, size: int, span: float
 ) -> np.ndarray:
     kind, colour = style.finishes[surface].draw(rng)
-    # keep structures roughly as large in metres as on a ~1 m object, however large the surface
+    return surface_texture(kind, colour, rng, size, span)
+
+
+def surface_texture(kind: str, colour: tuple[float, float, float], rng: np.random.Generator, size: int,
+                    span: float) -> np.ndarray:
+    """:func:`make_texture` of a surface ``span`` metres across, its structures roughly as large in metres as on
+    a ~1 m object, however large the surface."""
     feature_scale = float(np.clip(1.5 / max(span, 0.5), 0.3, 1.0))
     return make_texture(kind, rng, colour, size, feature_scale=feature_scale)
 

@@ -15,10 +15,8 @@ def code_formats(config) -> list[dict[str, int]]:
     from synthleak.scene.attacker_settings import SETTINGS_FORMAT
     from synthleak.scene.generate import STAGE_FORMAT
 
-    rc = config.render
-    photographed = any(p != "ideal" for p in (rc.capture_map, rc.capture_genuine, rc.capture_attacker))
     return [{"stage_format": STAGE_FORMAT, "settings_format": SETTINGS_FORMAT}] + (
-        [{"capture_format": CAPTURE_FORMAT}] if photographed else [])
+        [{"capture_format": CAPTURE_FORMAT}] if config.render.photographed else [])
 
 
 class RenderStage(Stage):
