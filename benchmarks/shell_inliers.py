@@ -27,6 +27,7 @@ import numpy as np
 
 from synthleak.config import load_config
 from synthleak.core.dataset import load_sequence
+from synthleak.errors import ConfigError
 from synthleak.evaluate.shell_share import mostly_on_shell
 from synthleak.localize.feature_files import load_features
 from synthleak.localize.localizer import Localizer
@@ -106,9 +107,21 @@ def main() -> None:
     parser.add_argument("config")
     parser.add_argument("--servers", default=None, help="comma-separated server names (default: every one)")
     args = parser.parse_args()
-    config = load_config(args.config)
+    try:
+        config = load_config(args.config)
+    except ConfigError as exc:
+        parser.exit(2, f"error: {exc}\n")
     paths = StudyPaths(args.study)
-    names = args.servers.split(",") if args.servers else sorted(p.name for p in paths.queries.iterdir())
+    if not paths.queries.is_dir():
+        parser.exit(2, f"error: {paths.queries}: no query logs (not a study folder, or its queries stage has "
+                       "not run)\n")
+    done = sorted(p.name for p in paths.queries.iterdir() if p.is_dir())
+    known = set(server_by_name(config.localize))
+    names = args.servers.split(",") if args.servers else [n for n in done if n in known]
+    unknown = [n for n in names if n not in known or n not in done]
+    if unknown:
+        parser.exit(2, f"error: --servers: {', '.join(unknown)} not a server of {args.config} with query logs in "
+                       f"{paths.queries} (there: {', '.join(n for n in done if n in known)})\n")
     print("| server | localized attacker queries | mostly on the room's shell | their query-side inliers: "
           "object / setting shell / other | the others' query-side inliers: object / setting shell / other |")
     print("|---|---|---|---|---|")
