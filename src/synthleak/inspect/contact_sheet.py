@@ -65,6 +65,8 @@ def find_sequence(path: Path, sequence: str | None = None) -> Path:
     """The sequence folder: ``path`` itself, or ``path/scenes/<s>`` / ``path/attackers/<s>`` of a dataset
     (``sequence`` by name or relative path; default: the first scene, else the first attacker sequence)."""
     path = Path(path)
+    if not path.is_dir():
+        raise DatasetError(f"{path}: no such folder (a dataset or a sequence folder, e.g. DATASET/scenes/room_000)")
     if (path / "colmap" / "images.txt").is_file() and sequence is None:
         return path
     if sequence is not None and (path / sequence / "colmap" / "images.txt").is_file():
@@ -78,7 +80,7 @@ def find_sequence(path: Path, sequence: str | None = None) -> Path:
     if sequence is not None:
         found = [p for p in found if p.name == sequence]
     if not found:
-        what = f"sequence {sequence!r}" if sequence else "any sequence (scenes/*, attackers/*)"
+        what = f"sequence {sequence!r}" if sequence else "rendered sequence (scenes/*, attackers/*)"
         names = sorted(p.name for g in ("scenes", "attackers") for p in (path / g).glob("*") if p.is_dir())
         raise DatasetError(f"{path}: no {what}; available: {names or 'none'}")
     return found[0]
