@@ -75,19 +75,31 @@ def test_sfm_registers_the_orbit_at_metric_scale(dense_orbit):
 
 
 def test_sfm_placement_matches_the_oracle_on_the_same_server_poses(dense_orbit):
+    """Each localized view places the object as the oracle's local pose does from the same server pose (the
+    SfM model's own error only), and Alg. 1 over the SfM model places it within the attack's thresholds. The
+    two Alg. 1 results are not compared directly: server poses 1-15° off put the two consensus sets on either
+    side of the 10° threshold (oracle views 0, 2, 3 against SfM's 2, 3, 4 on ci-tiny), which is not the
+    local model's error."""
     seq, model, server, world_from_object = dense_orbit
-    assert sum(p is not None for p in server.values()) >= 3, "too few orbit views localized to compare"
-    oracle = run_attack({n: p for n, p in oracle_local_poses(seq).items() if n in server}, server, "alg1",
-                        10.0, 0.25)
+    localized = {n: p for n, p in server.items() if p is not None}
+    assert len(localized) >= 3, "too few orbit views localized to compare"
+    oracle_local = oracle_local_poses(seq)
+    for name, cam_from_world in localized.items():
+        world_from_cam = np.linalg.inv(cam_from_world)
+        by_oracle = world_from_cam @ oracle_local[name]
+        by_sfm = scene_from_object_estimate(world_from_cam @ model.cam_from_local[name], model.object_from_local)
+        scale = np.cbrt(np.linalg.det(by_sfm[:3, :3]))
+        assert rotation_error_deg(by_sfm[:3, :3] / scale, by_oracle[:3, :3]) < 1.0, name
+        assert np.linalg.norm(by_sfm[:3, 3] - by_oracle[:3, 3]) < 0.1, name
+    oracle = run_attack({n: oracle_local[n] for n in server}, server, "alg1", 10.0, 0.25)
     sfm = run_attack({n: p for n, p in model.cam_from_local.items() if n in server}, server, "alg1", 10.0, 0.25)
     assert oracle.ok and sfm.ok
     sfm_placed = scene_from_object_estimate(sfm.scene_from_object, model.object_from_local)
     scale = np.cbrt(np.linalg.det(sfm_placed[:3, :3]))
-    assert rotation_error_deg(sfm_placed[:3, :3] / scale, oracle.scene_from_object) < 2.0
-    assert np.linalg.norm(sfm_placed[:3, 3] - oracle.scene_from_object[:3, 3]) < 0.05
-    # and the oracle itself is right, so the comparison means something
-    assert rotation_error_deg(oracle.scene_from_object, world_from_object) < 10.0
-    assert np.linalg.norm(oracle.scene_from_object[:3, 3] - world_from_object[:3, 3]) < 0.25
+    for rotation, translation in ((oracle.scene_from_object[:3, :3], oracle.scene_from_object[:3, 3]),
+                                  (sfm_placed[:3, :3] / scale, sfm_placed[:3, 3])):
+        assert rotation_error_deg(rotation, world_from_object[:3, :3]) < 10.0
+        assert np.linalg.norm(translation - world_from_object[:3, 3]) < 0.25
 
 
 def test_sfm_model_is_cached_and_rebuilt_when_the_options_change(dense_orbit, tmp_path):
