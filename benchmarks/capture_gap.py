@@ -52,11 +52,8 @@ Output: a markdown table (per tier: mean verified matches, localized share) on s
 ``--json OUT`` with every per-pair number. Deterministic: renders, devices and noise from ``derive_seed`` of the
 dataset's seed; RANSAC seeded as the localizer's.
 
-Measured (2026-12-02, ci-tiny study at 320x240 mitsuba, 24 pairs, 6 per object; localized share): as rendered
-(``viewpoint``) sift 88 %, orb 54 %, akaze 62 %, xfeat 79 %, xfeat-lighterglue 92 %, aliked-lightglue 96 %;
-defocus, motion blur, distortion, JPEG and vignetting alone move no tier by more than a pair or two; the
-``phone`` sensor row costs every tier 20-35 % of its verified matches; ``--profile phone-low-light``'s sensor row
-(ISO ~2400) drops sift to 29 %, orb 29 %, xfeat 38 %, xfeat-lighterglue 62 %, aliked-lightglue 71 %.
+Measured (2026-12-03, at 6a5d062, ci-tiny study at 320x240 mitsuba, 24 pairs): docs/renderers.md, 'Which effect
+moves the tier ordering'.
 
     python benchmarks/capture_gap.py STUDY_OR_DATASET [--pairs 10] [--tiers sift,orb,xfeat,xfeat-lighterglue]
         [--profile phone] [--max-keypoints 2048] [--tol-px 4] [--min-coverage 0.05] [--json OUT] [--no-progress]
