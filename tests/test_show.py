@@ -57,6 +57,10 @@ def test_contact_sheet_errors(dataset, tmp_path) -> None:
     with pytest.raises(DatasetError, match="no sequence 'nope'.*room_000"):
         contact_sheet(root, tmp_path / "x.png", sequence="nope")
     assert find_sequence(root, "room_000").name == "room_000"
+    study = tmp_path / "study"  # a study folder holds its dataset in dataset/
+    study.mkdir()
+    (study / "dataset").symlink_to(root, target_is_directory=True)
+    assert find_sequence(study, "room_000") == study / "dataset" / "scenes" / "room_000"
     with pytest.raises(ValueError, match="frames must be >= 1"):
         contact_sheet(root, tmp_path / "x.png", frames=0)
 

@@ -62,11 +62,14 @@ def instance_image(instance: np.ndarray) -> np.ndarray:
 
 
 def find_sequence(path: Path, sequence: str | None = None) -> Path:
-    """The sequence folder: ``path`` itself, or ``path/scenes/<s>`` / ``path/attackers/<s>`` of a dataset
-    (``sequence`` by name or relative path; default: the first scene, else the first attacker sequence)."""
+    """The sequence folder: ``path`` itself, or ``path/scenes/<s>`` / ``path/attackers/<s>`` of a dataset, or of a
+    study folder's ``dataset/`` (``sequence`` by name or relative path; default: the first scene, else the first
+    attacker sequence)."""
     path = Path(path)
     if not path.is_dir():
         raise DatasetError(f"{path}: no such folder (a dataset or a sequence folder, e.g. DATASET/scenes/room_000)")
+    if (path / "dataset").is_dir() and not any((path / g).is_dir() for g in ("scenes", "attackers")):
+        path = path / "dataset"  # a study folder: its dataset
     if (path / "colmap" / "images.txt").is_file() and sequence is None:
         return path
     if sequence is not None and (path / sequence / "colmap" / "images.txt").is_file():
