@@ -106,7 +106,8 @@ def test_a_broken_preset_is_listed_and_named_on_stderr(tmp_path: Path) -> None:
     broken, ci_tiny = json.loads(result.stdout)
     assert "nope" in broken["error"] and broken["renderer"] is None
     assert ci_tiny["cost"] == {"wall_s": 709.4, "cores": 2, "cpu": "Intel Xeon", "commit": "abc1234",
-                               "page": "docs/results/ci-tiny.md", "config_key": "", "stale": False}
+                               "page": "docs/results/ci-tiny.md", "config_key": "", "stale": False,
+                               "from_empty": True}
 
 
 def test_a_cost_measured_on_another_config_says_so(tmp_path: Path) -> None:

@@ -288,6 +288,8 @@ def test_sigterm_mid_study_then_a_rerun_resumes_to_the_same_bytes(ci_tiny_study:
     assert not (study / "report.md").exists()
     frames = _complete_frames(study)
     assert frames
+    (killed,) = json.loads((study / "run.json").read_text())["runs"]  # recorded although it never finished
+    assert killed["started_empty"] is True and killed["finished"] is False and killed["stage_s"]["render"] > 1
 
     start = time.monotonic()
     rerun = subprocess.run(command, capture_output=True, text=True, timeout=900)
@@ -295,3 +297,9 @@ def test_sigterm_mid_study_then_a_rerun_resumes_to_the_same_bytes(ci_tiny_study:
     print(f"rerun after SIGTERM: {time.monotonic() - start:.1f} s, {len(frames)} frame files kept")
     assert {p: p.stat().st_mtime_ns for p in frames} == frames  # finished frames are not rendered again
     assert _digests(study) == _digests(ci_tiny_study)
+    runs = json.loads((study / "run.json").read_text())["runs"]
+    assert [(r["started_empty"], r["finished"]) for r in runs] == [(True, False), (False, True)]
+    from synthleak.evaluate.results_page import render_page, results_summary
+
+    wall = render_page(results_summary(study)).split("| wall time |")[1].splitlines()[0]
+    assert "from an empty folder over 2 invocations (resumed); 1 of them interrupted" in wall, wall

@@ -542,10 +542,14 @@ class PresetCost:
     """The content key of the config the run was made with ('' in entries written before keys were recorded)."""
     stale: bool = False
     """The preset's config has changed since (its content key differs): the figure is of an earlier config."""
+    from_empty: bool = True
+    """The recorded invocations started from an empty folder; False: some stages were made by an unrecorded
+    run, so :attr:`wall_s` is less than the cost from scratch."""
 
     def __str__(self) -> str:
-        """``11.8 min (2 cores)``; ``(an earlier config)`` appended when :attr:`stale`."""
-        return self._wall() + (", an earlier config" if self.stale else "")
+        """``11.8 min (2 cores)``; ``>=`` before it when not :attr:`from_empty`, ``an earlier config`` after it
+        when :attr:`stale`."""
+        return ("" if self.from_empty else ">= ") + self._wall() + (", an earlier config" if self.stale else "")
 
     def _wall(self) -> str:
         if self.wall_s < 60:
@@ -605,7 +609,10 @@ def load_costs(index: Path) -> dict[str, PresetCost]:
             summary = index.parent.parent.parent / Path(text["page"]).with_suffix(".json")
             with contextlib.suppress(OSError, json.JSONDecodeError, AttributeError):
                 text["config_key"] = str(json.loads(summary.read_text()).get("config_key") or "")
-        costs[name] = PresetCost(wall_s=float(wall_s), cores=cores, **text)
+        from_empty = entry.get("from_empty", True)
+        if not isinstance(from_empty, bool):
+            raise ConfigError(f"{where}.from_empty: must be true or false, got {from_empty!r}")
+        costs[name] = PresetCost(wall_s=float(wall_s), cores=cores, from_empty=from_empty, **text)
     return costs
 
 

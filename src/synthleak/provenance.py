@@ -3,8 +3,9 @@
 Each entry: when it ran, the source commit, the config and its content key, the machine (CPU model, cores),
 the workers, the wall time and the seconds of each stage. A results page (:mod:`synthleak.evaluate.results_page`)
 states where its figures came from with it; the wall time "from an empty folder" is the sum over the entries
-(an interrupted and resumed study counts both parts). The file is outside ``results/``, whose bytes do not
-depend on the machine.
+(an interrupted and resumed study counts both parts). An invocation is recorded when it starts and updated after
+each stage, so one that is killed keeps the stages it finished (``finished`` false); ``started_empty`` says
+whether it found an empty folder. The file is outside ``results/``, whose bytes do not depend on the machine.
 """
 
 from __future__ import annotations
@@ -84,13 +85,20 @@ def read_run_record(study: Path) -> list[dict[str, Any]]:
     return list(runs)
 
 
-def append_run(study: Path, config: StudyConfig, started: float, timings: Mapping[str, float],
-               workers: int, executor: str) -> dict[str, Any]:
-    """Append this invocation (``started``: its ``time.time()`` at start) to ``study/run.json``; returns it."""
+FOLDER_BOOKKEEPING = frozenset({RUN_RECORD, ".study.lock"})
+"""Files that do not make a study folder non-empty."""
+
+
+def start_run(study: Path, config: StudyConfig, workers: int, executor: str) -> int:
+    """Record an invocation starting now in ``study/run.json`` (``finished`` false); returns its index there."""
+    study = Path(study)
+    empty = not any(p.name not in FOLDER_BOOKKEEPING for p in study.iterdir()) if study.is_dir() else True
     entry = {
-        "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(started)),
-        "wall_s": round(time.time() - started, 1),
-        "stage_s": dict(timings),
+        "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "wall_s": 0.0,
+        "stage_s": {},
+        "finished": False,
+        "started_empty": empty,
         "commit": source_commit(),
         "version": synthleak.__version__,
         "config": config.name,
@@ -102,5 +110,16 @@ def append_run(study: Path, config: StudyConfig, started: float, timings: Mappin
         "executor": executor,
     }
     runs = [*read_run_record(study), entry]
+    atomic_write_text(study / RUN_RECORD, json.dumps({"runs": runs}, indent=1) + "\n")
+    return len(runs) - 1
+
+
+def update_run(study: Path, index: int, started: float, timings: Mapping[str, float],
+               finished: bool = False) -> dict[str, Any]:
+    """Update entry ``index`` of ``study/run.json`` (``started``: the invocation's ``time.time()`` at start)
+    with its wall time so far, its stage seconds and whether it finished; returns the entry."""
+    runs = read_run_record(study)
+    entry = runs[index]
+    entry.update(wall_s=round(time.time() - started, 1), stage_s=dict(timings), finished=finished)
     atomic_write_text(Path(study) / RUN_RECORD, json.dumps({"runs": runs}, indent=1) + "\n")
     return entry

@@ -127,6 +127,9 @@ def results_summary(study: Path, name: str | None = None) -> dict[str, Any]:
         return json.loads(path.read_text()) if path.is_file() else []
 
     tradeoff = [t for t in load("defense_tradeoff.json") if t.get("tier") == "all"]
+    first = runs[0]
+    # records before `started_empty`: the renders, which always take minutes, tell whether they were made here
+    from_empty = first.get("started_empty", float(first.get("stage_s", {}).get("render", 0.0)) >= 1.0)
     world = load("world.json") or {"rooms": []}
     return plain({
         "name": name or last["config"],
@@ -134,6 +137,8 @@ def results_summary(study: Path, name: str | None = None) -> dict[str, Any]:
         "commit": last["commit"], "version": last["version"], "cpu": last["cpu"], "cores": last["cores"],
         "workers": last["workers"], "date": last["started"][:10], "invocations": len(runs),
         "wall_s": round(sum(float(r["wall_s"]) for r in runs), 1), "stage_s": _seconds(runs),
+        "from_empty": bool(from_empty), "unfinished": sum(not r.get("finished", True) for r in runs),
+        "other_configs": sorted({r["config"] for r in runs if r["config_key"] != last["config_key"]}),
         "renderer": config["render"]["renderer"], "resolution": f"{config['render']['width']}x"
                                                                 f"{config['render']['height']}",
         "tiers": config["localize"]["tiers"], "aligner": aligner, "presence": config["attack"]["presence"],
@@ -161,6 +166,16 @@ def render_page(summary: Mapping[str, Any]) -> str:
     s = summary
     minutes = ", ".join(f"{k} {v / 60:.1f}" for k, v in s["stage_s"].items() if v >= 6)
     resumed = f" over {s['invocations']} invocations (resumed)" if s["invocations"] > 1 else ""
+    if not s.get("from_empty", True):
+        resumed = (f" over {s['invocations']} recorded invocation{'s' if s['invocations'] > 1 else ''}; "
+                   f"{'the first' if s['invocations'] > 1 else 'it'} "
+                   "found stages made by runs the record does not hold, so this is less than the cost from an "
+                   "empty folder")
+    if s.get("unfinished"):
+        resumed += f"; {s['unfinished']} of them interrupted"
+    if s.get("other_configs"):
+        resumed += f"; some under config {', '.join(f'`{c}`' for c in s['other_configs'])}, sharing its cache"
+    origin = " from an empty folder" if s.get("from_empty", True) else ""
     command = f"synthleak report STUDY_DIR --docs docs/results/{s['name']}.md"
     parts = [
         f"# Results: `{s['name']}`\n",
@@ -171,7 +186,7 @@ def render_page(summary: Mapping[str, Any]) -> str:
             {"": "config", " ": f"`{s['config']}`, content key `{s['config_key']}`"},
             {"": "source", " ": f"synthleak {s['version']}, commit `{s['commit'] or 'unknown'}`"},
             {"": "machine", " ": f"{s['cpu']}, {s['cores']} cores, {s['workers']} workers"},
-            {"": "wall time", " ": f"{s['wall_s'] / 60:.1f} min from an empty folder{resumed} (minutes: {minutes})"},
+            {"": "wall time", " ": f"{s['wall_s'] / 60:.1f} min{origin}{resumed} (minutes: {minutes})"},
             {"": "made", " ": s["date"]},
             {"": "world", " ": f"{s['rooms']} rooms, {s['pairs']} (room, object) pairs; {s['renderer']} "
                                f"{s['resolution']}; tiers {', '.join(s['tiers'])}"},
@@ -257,6 +272,7 @@ def _update_index(index: Path, summary: Mapping[str, Any], page: str) -> None:
     data["presets"][summary["config"]] = {"wall_s": summary["wall_s"], "cpu": summary["cpu"],
                                           "cores": summary["cores"], "commit": summary["commit"],
                                           "config_key": summary["config_key"],
+                                          "from_empty": summary.get("from_empty", True),
                                           "page": f"docs/results/{page}"}
     data["presets"] = dict(sorted(data["presets"].items()))
     atomic_write_text(index, json.dumps(data, indent=1, ensure_ascii=False) + "\n")

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from synthleak.atomic_io import atomic_write_text
 from synthleak.config import StudyConfig, check_config
 from synthleak.executors import Executor, make_executor
-from synthleak.provenance import append_run
+from synthleak.provenance import start_run, update_run
 from synthleak.schema import as_list
 from synthleak.study.attack import AttackStage
 from synthleak.study.context import Stage, StudyContext
@@ -66,22 +66,32 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
     paths.root.mkdir(parents=True, exist_ok=True)
     with study_lock(paths.root):  # before any worker starts: a second run is refused at once
         started = time.time()
+        kind = executor if isinstance(executor, str) else type(executor).__name__
+        index = start_run(paths.root, config, getattr(executor, "workers", workers), kind)
+
+        def record(timings: dict[str, float], finished: bool = False) -> None:
+            update_run(paths.root, index, started, timings, finished)
+
         if isinstance(executor, str):
             with make_executor(executor, workers, address) as pool:
-                ctx = _run_stages(config, paths, forced, server_url, progress, pool)
+                ctx = _run_stages(config, paths, forced, server_url, progress, pool, record)
         else:
-            ctx = _run_stages(config, paths, forced, server_url, progress, executor)
-        kind = executor if isinstance(executor, str) else type(executor).__name__
-        append_run(paths.root, config, started, ctx.timings, getattr(executor, "workers", workers), kind)
+            ctx = _run_stages(config, paths, forced, server_url, progress, executor, record)
+        record(ctx.timings, finished=True)
         return ctx.outputs["report"]
 
 
 def _run_stages(config: StudyConfig, paths: StudyPaths, forced: frozenset[str], server_url: str | None,
-                progress: bool, executor: Executor) -> StudyContext:
+                progress: bool, executor: Executor,
+                record: Callable[[dict[str, float]], None]) -> StudyContext:
+    """Run the stages in order; after each (and when one is interrupted) ``record`` gets the stage seconds."""
     ctx = StudyContext(config, paths, forced, progress, executor, server_url)
     for stage in study_stages(ctx):
         start = time.perf_counter()
-        ctx.outputs[stage.name] = stage.run(ctx)
-        ctx.timings[stage.timings_label()] = round(time.perf_counter() - start, 2)
+        try:
+            ctx.outputs[stage.name] = stage.run(ctx)
+        finally:  # an interrupted stage counts the time it ran
+            ctx.timings[stage.timings_label()] = round(time.perf_counter() - start, 2)
+            record(ctx.timings)
     atomic_write_text(paths.timings, json.dumps(ctx.timings, indent=1))
     return ctx
