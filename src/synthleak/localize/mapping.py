@@ -19,6 +19,7 @@ import pycolmap
 from synthleak.atomic_io import atomic_write_text
 from synthleak.config import LocalizeConfig
 from synthleak.core.dataset import DatasetError, Sequence, camera_dist_coeffs, colmap_camera_model, load_sequence
+from synthleak.localize.deep import numerics_record
 from synthleak.localize.features import Features
 from synthleak.localize.pairs import pairs_from_poses
 from synthleak.localize.representations import DEFAULT_REPRESENTATION
@@ -69,6 +70,8 @@ def _map_settings(tier: str, config: LocalizeConfig, weights: dict) -> dict:
                 "format_version": FORMAT_VERSION}
     if weights:  # learned tiers: new weights or a new definition (thresholds, budget), new map
         settings["weights_sha256"] = {k: v["sha256"] for k, v in weights.items()}
+    if profile_tier(tier, config.profile).needs_torch:  # other torch numerics, other features: new map
+        settings["torch_numerics"] = numerics_record()
     if config.profile != DEFAULT_PROFILE:  # strict maps keep the settings they had before profiles
         settings["profile"] = config.profile
     if weights or config.profile != DEFAULT_PROFILE:

@@ -6,20 +6,23 @@ import importlib.util
 from collections.abc import Sequence
 
 from synthleak.errors import ConfigError, MissingDependencyError
-from synthleak.localize.deep import EXTRA, INSTALL_HINT
+from synthleak.localize.deep import EXTRA, INSTALL_HINT, numerics_record
 from synthleak.localize.tiers import DEFAULT_PROFILE, get_tier, profile_tier
 
 
 def tier_weights(tier: str, profile: str = DEFAULT_PROFILE) -> list:
-    """What of a tier enters a content key: a learned tier's definition (matching thresholds, budget) and the
-    sha256 of its weight files; under a server ``profile`` other than ``strict``, every tier's effective
-    definition (:func:`~synthleak.localize.tiers.profile_tier`) and the profile's name. Nothing for the other
-    tiers under ``strict`` (their keys stay as they were)."""
+    """What of a tier enters a content key: a torch tier's definition (matching thresholds, budget), the sha256
+    of its weight files and its torch numerics (:func:`~synthleak.localize.deep.numerics_record`); under a server
+    ``profile`` other than ``strict``, every tier's effective definition
+    (:func:`~synthleak.localize.tiers.profile_tier`) and the profile's name. Nothing for the other tiers under
+    ``strict`` (their keys stay as they were)."""
     spec = profile_tier(tier, profile)
     record = spec.weights_record()
-    if not record and profile == DEFAULT_PROFILE:
+    if not record and not spec.needs_torch and profile == DEFAULT_PROFILE:
         return []
     entry = {"tier": spec.definition(), "weights": {name: e["sha256"] for name, e in sorted(record.items())}}
+    if spec.needs_torch:
+        entry["numerics"] = numerics_record()
     return [entry if profile == DEFAULT_PROFILE else {"profile": profile, **entry}]
 
 
