@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+import synthleak  # noqa: F401  (pins torch's numerics before a test module imports torch or kornia)
+
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 

