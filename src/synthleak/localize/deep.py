@@ -24,8 +24,8 @@ torch's numerics are pinned to code that is the same on every x86-64 CPU (:func:
 ``$SYNTHLEAK_TORCH_NUMERICS=portable``): ATen's baseline kernels instead of its AVX2 / AVX-512 ones, MKL in its
 conditional numerical reproducibility mode (``MKL_CBWR=COMPATIBLE``), no oneDNN; descriptors are put on a dyadic
 grid (:data:`DESCRIPTOR_STEP`) so that every later product of them is exact. Left to choose its kernels by CPU,
-XFeat gave other keypoints on an Intel Xeon than on an AMD EPYC, and study-small's xfeat recall 0.23 there and
-0.31 here. ``native`` lets torch choose (about 3x faster XFeat, bytes that depend on the CPU).
+XFeat gave other keypoints on an Intel Xeon than on an AMD EPYC, and study-small's xfeat recall 0.23 on the
+Xeon and 0.31 on the EPYC. ``native`` lets torch choose (about 3x faster XFeat, bytes that depend on the CPU).
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ import numpy as np
 from synthleak.errors import MissingDependencyError, SynthleakError
 from synthleak.executors import worker_thread_cap
 from synthleak.localize.features import Features
-from synthleak.torch_env import NUMERICS_ENV, NUMERICS_MODES, PORTABLE_TORCH_ENV, numerics_mode
+from synthleak.torch_env import NUMERICS_ENV, NUMERICS_MODES, PORTABLE_TORCH_ENV, numerics_mode, pin_torch_env
 
 EXTRA = "learned"
 WEIGHTS_ENV = "SYNTHLEAK_WEIGHTS_DIR"
@@ -133,8 +133,7 @@ def portable_torch():
     """torch, with its numerics pinned as :func:`torch_numerics` says; raises where torch already chose other
     kernels in this process (imported and used before synthleak), naming the variables to set instead."""
     mode = torch_numerics()
-    if mode == "portable":
-        os.environ.update(PORTABLE_TORCH_ENV)
+    pin_torch_env()  # as at ``import synthleak``: too late only where torch already ran a kernel
     import torch
 
     if mode == "portable":
