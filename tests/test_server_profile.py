@@ -26,6 +26,7 @@ from synthleak.localize.tiers import (
     TIERS,
     get_tier,
     list_tiers,
+    profile_fixes,
     profile_names,
     profile_tier,
 )
@@ -215,3 +216,24 @@ def test_maps_record_the_profile_and_strict_maps_keep_their_keys(room, tmp_path)
     build_map(room, "orb", tmp_path / "orb", hloc_cfg, progress=False)
     orb = json.loads((tmp_path / "orb" / "map.json").read_text())["settings"]["tier_definition"]
     assert (orb["ratio"], orb["mutual"], orb["min_inliers"]) == (0.0, True, 3) and "ratio_both_ways" not in orb
+
+
+def test_a_config_override_tunes_strict_servers_and_leaves_hlocs_values(room, tmp_path):
+    """The study presets set ``pnp_max_error_px`` for their strict servers (HLoc's 12 px as a share of the width):
+    a strict server takes it, an ``hloc`` server keeps HLoc's 12 px and 3 inliers on any image size."""
+    strict_cfg = LocalizeConfig(max_keypoints=512, pairs_per_image=3, pnp_max_error_px=4.0, min_inliers=20)
+    hloc_cfg = dataclasses.replace(strict_cfg, profile="hloc")
+    build_map(room, "sift", tmp_path / "strict", strict_cfg, progress=False)
+    build_map(room, "sift", tmp_path / "hloc", hloc_cfg, progress=False)
+    strict = Localizer.load(tmp_path / "strict", strict_cfg)
+    hloc = Localizer.load(tmp_path / "hloc", hloc_cfg)
+    assert (strict.max_error_px, strict.min_inliers) == (4.0, 20)
+    assert (hloc.max_error_px, hloc.min_inliers) == (12.0, 3)
+    seq = load_sequence(room)
+    rgb = seq.rgb(seq.query_frames[0])
+    tight = strict.localize(rgb)
+    loose = Localizer.load(tmp_path / "strict", dataclasses.replace(strict_cfg, pnp_max_error_px=0.0)).localize(rgb)
+    assert tight.success and loose.success and tight.num_inliers < loose.num_inliers  # 4 px keeps fewer than 12 px
+    assert hloc.localize(rgb).success
+    assert profile_fixes("sift", "hloc") >= {"pnp_max_error_px", "min_inliers"}
+    assert profile_fixes("sift", "strict") == frozenset() == profile_fixes("sift", ["strict", "hloc"])

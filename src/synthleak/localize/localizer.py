@@ -20,7 +20,7 @@ from synthleak.localize.images import MAX_QUERY_PIXELS, InvalidImageError, decod
 from synthleak.localize.representations import map_representation, read_represented_map
 from synthleak.localize.retrieval import RETRIEVAL_METHODS, BowIndex
 from synthleak.localize.store import MapData, MapError
-from synthleak.localize.tiers import DEFAULT_PROFILE, Tier, profile_tier
+from synthleak.localize.tiers import DEFAULT_PROFILE, Tier, profile_fixes, profile_tier
 from synthleak.schema import as_list
 
 RANSAC_SEED = 0
@@ -84,8 +84,10 @@ class Localizer:
         self.decision_log = decision_log
         self.extractor = tier.make_extractor(config.max_keypoints, weights_dir)
         self.matcher = tier.make_matcher(weights_dir)
-        self.min_inliers = config.min_inliers or tier.min_inliers
-        self.max_error_px = config.pnp_max_error_px or tier.pnp_max_error_px
+        fixed = profile_fixes(tier, config.profile)  # a profile's own values win over the config's override
+        self.min_inliers = tier.min_inliers if "min_inliers" in fixed else config.min_inliers or tier.min_inliers
+        self.max_error_px = (tier.pnp_max_error_px if "pnp_max_error_px" in fixed
+                             else config.pnp_max_error_px or tier.pnp_max_error_px)
         # Only keypoints with a 3D point take part in 2D-3D matching.
         self._db: list[tuple[Features, np.ndarray]] = []
         for f, idx in zip(data.features, data.point_index, strict=True):

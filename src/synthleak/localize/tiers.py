@@ -22,7 +22,8 @@ they keep at most ``min(LocalizeConfig.max_keypoints, Tier.max_keypoints)`` keyp
 learned matcher matches a query only against the ``top_k`` map images that bag-of-words retrieval ranks first,
 whatever ``LocalizeConfig.retrieval`` says (matching every map image would cost a network pass per image).
 
-All use RANSAC PnP with a 12 px threshold (HLoc's default; ``LocalizeConfig.pnp_max_error_px`` overrides it).
+All use RANSAC PnP with a 12 px threshold (HLoc's default; ``LocalizeConfig.pnp_max_error_px`` overrides it for
+the ``strict`` profile: the study presets scale it to their image width, see ``render_configs/study.toml``).
 
 Server profiles (``[localize] profile``, :data:`PROFILES`, :func:`profile_tier`): ``strict`` is the table above;
 ``hloc`` sets each tier's matching and PnP fields to HLoc's published defaults (``docs/learned-tiers.md``, "Server
@@ -309,6 +310,16 @@ A profile is a plain table: a plugin tier gets values under a profile with ``PRO
 def profile_names() -> list[str]:
     """The server profiles, ``strict`` first."""
     return list(PROFILES)
+
+
+def profile_fixes(tier: Tier | str, profile: str | list[str] = DEFAULT_PROFILE) -> frozenset[str]:
+    """The :data:`PROFILE_FIELDS` server ``profile`` sets for ``tier``: these the profile fixes, and a config's
+    ``[localize] pnp_max_error_px`` / ``min_inliers`` override only the others (``hloc`` keeps HLoc's 12 px on
+    any image size; the override tunes ``strict`` servers). A list of profiles (a study's): none fixed."""
+    if not isinstance(profile, str) or profile == DEFAULT_PROFILE:
+        return frozenset()
+    name = tier if isinstance(tier, str) else tier.name
+    return frozenset(PROFILES.get(profile, {}).get(name, {}))
 
 
 def profile_tier(tier: Tier | str, profile: str = DEFAULT_PROFILE) -> Tier:
