@@ -5,7 +5,8 @@ shell pieces (floor, walls, ceiling, door, window backdrop) have ids ``1..99``, 
 (:data:`synthleak.scene.plan.FIRST_OBJECT_ID`), 0 is unlabelled. A localized query lies *mostly on the shell*
 when more than half of its inliers are on shell ids. Such a query matched the attacker's background to the
 room's background, by chance: it is not the look-alike leak the paper measures (Chelani et al., CVPR 2023,
-Sec. 4: the attacker's images show the object, not the room). The issue's target is a share under 10 %.
+Sec. 4: the attacker's images show the object, not the room). The issue's target is a share under 10 %; the
+``hloc`` servers, which accept any pose with 3 inliers, cannot meet it (docs/learned-tiers.md, "The PnP threshold").
 """
 
 from __future__ import annotations
