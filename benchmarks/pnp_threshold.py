@@ -65,7 +65,7 @@ def rows_of(summary: dict[str, Any], px: float) -> list[dict[str, Any]]:
     return out
 
 
-def _f(value: Any, digits: int = 2) -> str:
+def _f(value: Any, digits: int = 3) -> str:
     return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
 
