@@ -312,9 +312,10 @@ class LocalizeConfig:
     """... and levels: up to ``bow_branching ** bow_depth`` words (see :mod:`synthleak.localize.retrieval`)."""
     max_keypoints: int = 4096
     pnp_max_error_px: float = 0.0
-    """RANSAC PnP threshold in pixels; 0: the tier's own (12 px for every built-in tier, HLoc's default)."""
+    """RANSAC PnP threshold in pixels; 0: the tier's own (12 px for every built-in tier, HLoc's default). A server
+    profile that sets it (``hloc``: 12 px) keeps its own (:func:`synthleak.localize.tiers.profile_fixes`)."""
     min_inliers: int = 0
-    """0: the tier's own default."""
+    """0: the tier's own default; a profile that sets it (``hloc``: 3) keeps its own."""
     pairs_per_image: int = 10
 
     def check_fields(self, where: str) -> None:
