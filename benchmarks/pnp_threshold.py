@@ -30,6 +30,7 @@ from synthleak.config import StudyConfig, load_config
 from synthleak.errors import ConfigError
 from synthleak.evaluate.results_page import results_summary
 from synthleak.localize.servers import server_by_name
+from synthleak.provenance import config_key, read_run_record
 
 
 def threshold_config(config: StudyConfig, px: float, servers: list[str]) -> StudyConfig:
@@ -106,6 +107,10 @@ def main() -> None:
                        f"(known: {', '.join(known)})\n")
     if not (args.study / "run.json").is_file() or not (args.study / "maps").is_dir():
         parser.exit(2, f"error: {args.study}: not a finished study folder (no run.json or maps/)\n")
+    keys = {run["config_key"]: run["config"] for run in read_run_record(args.study)}
+    if config_key(config) not in keys:  # another config: its copies would render and map everything again
+        parser.exit(2, f"error: {args.study}/run.json: run with {', '.join(f'{c} (key {k})' for k, c in keys.items())}"
+                       f", not {args.config} (key {config_key(config)}): pass the config the study was run with\n")
     out = args.out or args.study.with_name(args.study.name + "-pnp")
     rows: list[dict[str, Any]] = []
     for px in thresholds:
