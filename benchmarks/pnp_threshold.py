@@ -28,6 +28,7 @@ from typing import Any
 
 from synthleak.config import StudyConfig, load_config
 from synthleak.errors import ConfigError
+from synthleak.evaluate.doc_blocks import markdown_table
 from synthleak.evaluate.results_page import results_summary
 from synthleak.localize.servers import server_by_name
 from synthleak.provenance import config_key, read_run_record
@@ -66,19 +67,18 @@ def rows_of(summary: dict[str, Any], px: float) -> list[dict[str, Any]]:
     return out
 
 
-def _f(value: Any, digits: int = 3) -> str:
-    return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
+def _f(value: Any) -> str:
+    return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.3f}"
 
 
 def print_table(rows: list[dict[str, Any]]) -> None:
-    print("| server | PnP px | genuine localized | close-ups localized | median genuine error (° / m) | attacker "
-          "localized, present / absent | P / R | placed (Alg. 1) | mostly on the room's shell |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for r in sorted(rows, key=lambda r: (r["server"], -r["px"])):
-        share = f"{r['shell']} of {r['localized']}"
-        print(f"| {r['server']} | {r['px']:g} | {_f(r['genuine'])} | {_f(r['closeups'])} | {_f(r['rot'])} / "
-              f"{_f(r['trans'], 3)} | {_f(r['present'])} / {_f(r['absent'])} | {_f(r['precision'])} / "
-              f"{_f(r['recall'])} | {_f(r['placed'])} | {share} |")
+    header = ["server", "PnP px", "genuine localized", "close-ups localized", "median genuine error (° / m)",
+              "attacker localized, present / absent", "P / R", "placed (Alg. 1)", "mostly on the room's shell"]
+    print(markdown_table(header, [
+        [r["server"], f"{r['px']:g}", _f(r["genuine"]), _f(r["closeups"]), f"{_f(r['rot'])} / {_f(r['trans'])}",
+         f"{_f(r['present'])} / {_f(r['absent'])}", f"{_f(r['precision'])} / {_f(r['recall'])}", _f(r["placed"]),
+         f"{r['shell']} of {r['localized']}"]
+        for r in sorted(rows, key=lambda r: (r["server"], -r["px"]))]))
 
 
 def main() -> None:

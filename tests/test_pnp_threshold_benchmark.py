@@ -23,6 +23,7 @@ def test_a_copy_at_the_studys_threshold_reproduces_it_and_a_stricter_one_localiz
                                                                                         tmp_path: Path):
     bench = _module()
     config = load_config("ci-tiny")
+    logs = {p: p.read_bytes() for p in sorted((ci_tiny_study / "queries").rglob("queries.jsonl"))}
     same = bench.rows_of(bench.run_threshold(ci_tiny_study, config, 12.0, ["sift"], tmp_path / "px-12", 1), 12.0)
     base = bench.rows_of(results_summary(ci_tiny_study), 12.0)
     assert same == [r for r in base if r["server"] == "sift"]  # reused renders, maps, features: the same figures
@@ -31,4 +32,5 @@ def test_a_copy_at_the_studys_threshold_reproduces_it_and_a_stricter_one_localiz
     assert at2["present"] + at2["absent"] < at12["present"] + at12["absent"]  # fewer chance inliers: fewer poses
     assert at2["genuine"] <= at12["genuine"]
     assert read_run_record(tmp_path / "px-2")[-1]["config_dict"]["localize"]["pnp_max_error_px"] == 2.0
-    assert (ci_tiny_study / "queries").is_dir()  # the study itself untouched: its copy ran
+    assert logs and logs == {p: p.read_bytes() for p in sorted((ci_tiny_study / "queries").rglob("queries.jsonl"))}
+    # the study itself untouched: only its copies were re-queried
