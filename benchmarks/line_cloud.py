@@ -11,6 +11,11 @@ refinement; ``ok p/l``: localized by each server's success rule, the line server
 the same maps (no true pose: both run to their trial caps). Rows ``synthetic``: 300 matches with 1 px noise and a
 given outlier fraction, both at 12 px. The issue's target: a line query costs at most 3x a point query (the
 caption's ``line/point`` on the scene rows).
+
+Columns ``+2v``: the same servers with two-view verification (``[localize] two_view_min_inliers``, default 15
+here: ``--two-view``): ``verify ms`` is the essential-matrix check of the query's pairs (once per query; both
+servers would run it), ``point+2v`` / ``line+2v`` the check plus the pose from the matches it keeps; a view of
+another room keeps none and costs the check alone.
 """
 
 from __future__ import annotations
@@ -51,7 +56,8 @@ def _errors(pose: np.ndarray | None, gt: np.ndarray) -> tuple[float, float]:
             rotation_error_deg(pose[:3, :3], gt[:3, :3]))
 
 
-def bench_scene(work: Path, frames: int, size: tuple[int, int], repeat: int, wrong_views: int) -> list[dict]:
+def bench_scene(work: Path, frames: int, size: tuple[int, int], repeat: int, wrong_views: int,
+                two_view: int) -> list[dict]:
     camera = Camera.from_hfov(*size, 65.0)
     scene = ts.write_sequence(work / "room_000", ts.make_room(seed=0), camera, ts.walkthrough_poses(frames),
                               query_every=4)
@@ -75,6 +81,15 @@ def bench_scene(work: Path, frames: int, size: tuple[int, int], repeat: int, wro
             dist, angle = _errors(result.cam_from_world, gt)
             row |= {f"{name}_ms": ms, f"{name}_inliers": result.num_inliers, f"{name}_ok": result.success,
                     f"{name}_cm": 100 * dist, f"{name}_deg": angle}
+        candidates = lines.candidates(query)
+        matches = lines.pair_matches(query, candidates)
+        row["verify_ms"], kept = _timed(lambda q=query, c=candidates, m=matches: lines.verify_pairs(
+            q, c, m, camera, two_view), repeat)
+        row["kept"], before = len(kept), len(corr)
+        for name, loc in (("point", points), ("line", lines)):
+            ms, result = _timed(lambda loc=loc, q=query, k=kept, n=before: loc.pose_from_matches(q, k, camera, n),
+                                repeat)
+            row[f"{name}_v_ms"], row[f"{name}_v_ok"] = row["verify_ms"] + ms, result.success
         rows.append(row)
     return rows
 
@@ -111,13 +126,14 @@ def bench_synthetic(outliers: float, repeat: int, max_error_px: float = 12.0) ->
     return row
 
 
-def _median_ratio(rows: list[dict], prefix: str) -> str:
+def _median_ratio(rows: list[dict], prefix: str, line: str = "line") -> str:
+    """Median point and ``line`` (``line``: unverified, ``line_v``: with the check) ms of the rows ``prefix``."""
     group = [r for r in rows if r["case"].startswith(prefix)]
     if not group:
         return f"{prefix}: none"
-    p, q = (float(np.median([r[f"{k}_ms"] for r in group])) for k in ("point", "line"))
-    ratio = float(np.median([r["line_ms"] / r["point_ms"] for r in group]))
-    return f"{prefix} median: point {p:.1f} ms, line {q:.1f} ms, line/point {ratio:.1f}x"
+    p, q = (float(np.median([r[f"{k}_ms"] for r in group])) for k in ("point", line))
+    ratio = float(np.median([r[f"{line}_ms"] / r["point_ms"] for r in group]))
+    return f"{prefix} median: point {p:.1f} ms, {line} {q:.1f} ms, {line}/point {ratio:.1f}x"
 
 
 def main() -> None:
@@ -127,24 +143,33 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--wrong-views", type=int, default=3, help="views of another room (0: none)")
     parser.add_argument("--no-synthetic", action="store_true")
+    parser.add_argument("--two-view", type=int, default=15, help="two_view_min_inliers of the +2v columns")
     args = parser.parse_args()
     size = tuple(int(v) for v in args.size.split("x"))
     with tempfile.TemporaryDirectory() as tmp:
-        rows = bench_scene(Path(tmp), args.frames, size, args.repeat, args.wrong_views)
+        rows = bench_scene(Path(tmp), args.frames, size, args.repeat, args.wrong_views, args.two_view)
     if not args.no_synthetic:
         rows += [bench_synthetic(f, args.repeat) for f in (0.1, 0.3, 0.5)]
     table = Table(title="pose from the same matches: point PnP (pycolmap) vs line cloud (p6L LO-RANSAC)")
     for col in ("case", "matches", "point ms", "line ms", "line/point", "inliers p/l", "ok p/l",
-                "error p (cm, deg)", "error l (cm, deg)"):
+                "error p (cm, deg)", "error l (cm, deg)", "kept", "verify ms", "point+2v ms", "line+2v ms",
+                "line+2v/point", "ok p/l +2v"):
         table.add_column(col, justify="left" if col == "case" else "right")
     for r in rows:
+        verified = ["-"] * 6
+        if "kept" in r:
+            verified = [str(r["kept"]), f"{r['verify_ms']:.1f}", f"{r['point_v_ms']:.1f}", f"{r['line_v_ms']:.1f}",
+                        f"{r['line_v_ms'] / r['point_ms']:.1f}x",
+                        f"{'y' if r['point_v_ok'] else 'n'}/{'y' if r['line_v_ok'] else 'n'}"]
         table.add_row(r["case"], str(r["matches"]), f"{r['point_ms']:.1f}", f"{r['line_ms']:.1f}",
                       f"{r['line_ms'] / r['point_ms']:.1f}x", f"{r['point_inliers']}/{r['line_inliers']}",
                       f"{'y' if r['point_ok'] else 'n'}/{'y' if r['line_ok'] else 'n'}",
-                      f"{r['point_cm']:.2f}, {r['point_deg']:.3f}", f"{r['line_cm']:.2f}, {r['line_deg']:.3f}")
+                      f"{r['point_cm']:.2f}, {r['point_deg']:.3f}", f"{r['line_cm']:.2f}, {r['line_deg']:.3f}",
+                      *verified)
     table.caption = "; ".join([_median_ratio(rows, "scene") + " (target <= 3x)", _median_ratio(rows, "wrong room"),
-                               "ms: median of the repeats"])
-    Console(width=160).print(table)
+                               _median_ratio(rows, "scene", "line_v") + " (+2v)",
+                               _median_ratio(rows, "wrong room", "line_v") + " (+2v)", "ms: median of the repeats"])
+    Console(width=200).print(table)
 
 
 if __name__ == "__main__":

@@ -277,9 +277,11 @@ class LocalizeConfig:
         "pnp_max_error_px": at_least(0.0),
         "min_inliers": at_least(0),
         "pairs_per_image": COUNT,
+        "two_view_min_inliers": at_least(0),
     }
     """A rule per field, checked when the config loads."""
-    KEY_DEFAULTS: ClassVar[dict[str, Any]] = {"profile": "strict", "representation": "points", "servers": []}
+    KEY_DEFAULTS: ClassVar[dict[str, Any]] = {"profile": "strict", "representation": "points", "servers": [],
+                                              "two_view_min_inliers": 0}
     """Fields added after content keys were in use: :func:`config_to_dict` leaves them out at these values, so a
     config that does not change them keeps its keys (and its cached maps, queries and report)."""
 
@@ -317,6 +319,12 @@ class LocalizeConfig:
     min_inliers: int = 0
     """0: the tier's own default; a profile that sets it (``hloc``: 3) keeps its own."""
     pairs_per_image: int = 10
+    two_view_min_inliers: int = 0
+    """0: off. Otherwise a server keeps of each (query, map image) pair's matches only the inliers of an essential
+    matrix (LO-RANSAC, the PnP threshold in pixels), from pairs with at least this many (COLMAP's two-view
+    default: 15), before PnP or the line solver (:mod:`synthleak.localize.two_view`); every server of the study,
+    points and lines alike. The success count stays computed on the matches before it. A query of another place
+    then reaches a line server's p6L RANSAC rarely (``docs/map-representations.md``, "Cost")."""
 
     def check_fields(self, where: str) -> None:
         """``servers`` names servers of this config's tiers, profiles and representations, each once."""

@@ -21,6 +21,7 @@ from synthleak.localize.representations import map_representation, read_represen
 from synthleak.localize.retrieval import RETRIEVAL_METHODS, BowIndex
 from synthleak.localize.store import MapData, MapError
 from synthleak.localize.tiers import DEFAULT_PROFILE, Tier, profile_fixes, profile_tier
+from synthleak.localize.two_view import verified_matches
 from synthleak.schema import as_list
 
 RANSAC_SEED = 0
@@ -88,6 +89,7 @@ class Localizer:
         self.min_inliers = tier.min_inliers if "min_inliers" in fixed else config.min_inliers or tier.min_inliers
         self.max_error_px = (tier.pnp_max_error_px if "pnp_max_error_px" in fixed
                              else config.pnp_max_error_px or tier.pnp_max_error_px)
+        self.two_view_min_inliers = int(config.two_view_min_inliers)
         # Only keypoints with a 3D point take part in 2D-3D matching.
         self._db: list[tuple[Features, np.ndarray]] = []
         for f, idx in zip(data.features, data.point_index, strict=True):
@@ -171,28 +173,63 @@ class Localizer:
         if candidates is None:
             candidates = self.candidates(query)
         t_retrieval = time.perf_counter() - t1
-        corr = self.correspondences(query, candidates)
+        corr, num_matches = self.verified_correspondences(query, candidates, camera)
         t2 = time.perf_counter()
-        result = self.pose_from_matches(query, corr, camera)
+        result = self.pose_from_matches(query, corr, camera, num_matches)
         t3 = time.perf_counter()
         result.timings = {"features": 0.0, "retrieval": t_retrieval, "matching": t2 - t1, "pnp": t3 - t2,
                           "total": t3 - t1}
         result.retrieved = sorted(self.data.names[int(i)] for i in candidates)
         return result
 
+    def pair_matches(self, query: Features, candidates: np.ndarray) -> list[np.ndarray]:
+        """Per candidate map image, the (M, 2) ``(query keypoint, map image keypoint)`` matches (indices into the
+        map image's keypoints that have a 3D point or line)."""
+        return [self.matcher(query, self._db[i][0]) for i in candidates]
+
     def correspondences(self, query: Features, candidates: np.ndarray) -> np.ndarray:
         """(M, 2) unique ``(query keypoint, map point)`` matches against the ``candidates`` map images, sorted."""
-        pairs = set()
-        for i in candidates:
-            db_features, db_points = self._db[i]
-            m = self.matcher(query, db_features)
-            pairs.update(zip(m[:, 0].tolist(), db_points[m[:, 1]].tolist(), strict=True))
+        return self._union([np.stack([m[:, 0], self._db[i][1][m[:, 1]]], axis=1)
+                            for i, m in zip(candidates, self.pair_matches(query, candidates), strict=True)])
+
+    def verified_correspondences(self, query: Features, candidates: np.ndarray, camera: Camera | None = None
+                                 ) -> tuple[np.ndarray, int]:
+        """The matches :meth:`correspondences` gives that pass two-view verification (``[localize]
+        two_view_min_inliers``, :mod:`synthleak.localize.two_view`; all of them when it is 0), and how many
+        matches there were before it. ``camera``: the query's (default: the map's)."""
+        matches = self.pair_matches(query, candidates)
+        every = self._union([np.stack([m[:, 0], self._db[i][1][m[:, 1]]], axis=1)
+                             for i, m in zip(candidates, matches, strict=True)])
+        if not self.two_view_min_inliers:
+            return every, len(every)
+        return self.verify_pairs(query, candidates, matches, camera), len(every)
+
+    def verify_pairs(self, query: Features, candidates: np.ndarray, matches: list[np.ndarray],
+                     camera: Camera | None = None, min_inliers: int | None = None) -> np.ndarray:
+        """The ``(query keypoint, map point)`` matches, unique and sorted, of the ``candidates``' pair
+        ``matches`` (:meth:`pair_matches`) that are essential-matrix inliers of a pair with at least
+        ``min_inliers`` of them (default: the config's ``two_view_min_inliers``)."""
+        pairs = [(m, self._db[i][0].keypoints, self._db[i][1]) for i, m in zip(candidates, matches, strict=True)]
+        kept = verified_matches(query.keypoints, pairs, camera or self.camera, self.camera, float(self.max_error_px),
+                                self.two_view_min_inliers if min_inliers is None else int(min_inliers),
+                                seed=RANSAC_SEED)
+        return self._union(kept)
+
+    @staticmethod
+    def _union(parts: list[np.ndarray]) -> np.ndarray:
+        pairs: set[tuple[int, int]] = set()
+        for part in parts:
+            pairs.update(zip(part[:, 0].tolist(), part[:, 1].tolist(), strict=True))
         return np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
 
-    def pose_from_matches(self, query: Features, corr: np.ndarray, camera: Camera) -> LocalizationResult:
-        """RANSAC PnP on 2D-3D matches (``min_inliers``, ``max_error_px``), inlier instance counts, defense."""
+    def pose_from_matches(self, query: Features, corr: np.ndarray, camera: Camera,
+                          num_matches: int | None = None) -> LocalizationResult:
+        """RANSAC PnP on 2D-3D matches (``min_inliers``, ``max_error_px``), inlier instance counts, defense.
+        ``num_matches``: the matches before two-view verification (default ``len(corr)``), on which the line
+        server's success count is computed and which the result reports."""
+        num_matches = len(corr) if num_matches is None else int(num_matches)
         if len(corr) < max(self.min_inliers, 3):  # P3P: 3 matches (COLMAP, HLoc)
-            return LocalizationResult(False, num_matches=len(corr))
+            return LocalizationResult(False, num_matches=num_matches)
         model, params = colmap_camera_model(camera)  # PINHOLE, or OPENCV with the query's lens distortion
         cam = pycolmap.Camera(model=model, width=camera.width, height=camera.height, params=params)
         options = pycolmap.AbsolutePoseEstimationOptions()
@@ -211,7 +248,10 @@ class Localizer:
             threshold = equivalent_line_threshold(float(self.max_error_px), camera)  # as many chance inliers
             keypoints, pinhole = undistorted_keypoints(query.keypoints[corr[:, 0]], camera)
             # as rarely accepted by chance as the point server's min_inliers at max_error_px on as many matches
-            min_inliers = line_min_inliers(len(corr), self.min_inliers, float(self.max_error_px), threshold, pinhole)
+            min_inliers = line_min_inliers(num_matches, self.min_inliers, float(self.max_error_px), threshold,
+                                           pinhole)
+            if len(corr) < min_inliers:  # no pose from these matches could pass the success count
+                return LocalizationResult(False, num_matches=num_matches)
             est = estimate_pose_from_lines(
                 keypoints, lines.directions[corr[:, 1]], lines.anchors[corr[:, 1]], pinhole,
                 LineRansacOptions(max_error_px=threshold, min_inliers=min_inliers), seed=RANSAC_SEED)
@@ -220,7 +260,7 @@ class Localizer:
                 query.keypoints[corr[:, 0]], self.data.xyz[corr[:, 1]], cam, options
             )
         if est is None:
-            return LocalizationResult(False, num_matches=len(corr))
+            return LocalizationResult(False, num_matches=num_matches)
         inliers = corr[np.asarray(est["inlier_mask"], dtype=bool)]
         _, first = np.unique(inliers[:, 0], return_index=True)  # one vote per query keypoint
         counts = Counter(int(self.data.instance[p]) for p in inliers[first, 1])
@@ -235,7 +275,7 @@ class Localizer:
             self._log(decision, num_inliers)
             if self.defense.enabled and not decision.accepted:
                 success, withheld = False, pose
-        return LocalizationResult(success, pose if success else None, num_inliers, len(corr), counts_sorted,
+        return LocalizationResult(success, pose if success else None, num_inliers, num_matches, counts_sorted,
                                   decision, withheld_cam_from_world=withheld, inlier_matches=inliers[first])
 
     def _log(self, decision: DefenseDecision, num_inliers: int) -> None:
