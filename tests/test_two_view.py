@@ -121,7 +121,7 @@ def test_the_line_count_is_read_on_the_matches_before_the_check(servers, scene):
     threshold = equivalent_line_threshold(verified.max_error_px, CAMERA)
     count = line_min_inliers(before, verified.min_inliers, verified.max_error_px, threshold, CAMERA)
     assert count > line_min_inliers(len(kept), verified.min_inliers, verified.max_error_px, threshold, CAMERA)
-    assert verified.pose_from_matches(query, kept[:count - 1], CAMERA, before).success is False  # too few to try
+    assert verified.pose_from_matches(query, kept[:count - 1], CAMERA, before).success is False  # too few
 
 
 def test_the_setting_is_checked_and_keeps_the_keys_of_configs_without_it(tmp_path):

@@ -250,8 +250,6 @@ class Localizer:
             # as rarely accepted by chance as the point server's min_inliers at max_error_px on as many matches
             min_inliers = line_min_inliers(num_matches, self.min_inliers, float(self.max_error_px), threshold,
                                            pinhole)
-            if len(corr) < min_inliers:  # no pose from these matches could pass the success count
-                return LocalizationResult(False, num_matches=num_matches)
             est = estimate_pose_from_lines(
                 keypoints, lines.directions[corr[:, 1]], lines.anchors[corr[:, 1]], pinhole,
                 LineRansacOptions(max_error_px=threshold, min_inliers=min_inliers), seed=RANSAC_SEED)
