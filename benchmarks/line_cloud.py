@@ -15,7 +15,9 @@ caption's ``line/point`` on the scene rows).
 Columns ``+2v``: the same servers with two-view verification (``[localize] two_view_min_inliers``, default 15
 here: ``--two-view``): ``verify ms`` is the essential-matrix check of the query's pairs (once per query; both
 servers would run it), ``point+2v`` / ``line+2v`` the check plus the pose from the matches it keeps; a view of
-another room keeps none and costs the check alone.
+another room keeps none and costs the check alone. ``match ms``: matching the query against its retrieved map
+images (the same for every server); ``query line+2v/point``: a whole query's time, matching included, of the
+verified line server over the unverified point server.
 """
 
 from __future__ import annotations
@@ -82,7 +84,7 @@ def bench_scene(work: Path, frames: int, size: tuple[int, int], repeat: int, wro
             row |= {f"{name}_ms": ms, f"{name}_inliers": result.num_inliers, f"{name}_ok": result.success,
                     f"{name}_cm": 100 * dist, f"{name}_deg": angle}
         candidates = lines.candidates(query)
-        matches = lines.pair_matches(query, candidates)
+        row["match_ms"], matches = _timed(lambda q=query, c=candidates: lines.pair_matches(q, c), repeat)
         row["verify_ms"], kept = _timed(lambda q=query, c=candidates, m=matches: lines.verify_pairs(
             q, c, m, camera, two_view), repeat)
         row["kept"], before = len(kept), len(corr)
@@ -136,6 +138,11 @@ def _median_ratio(rows: list[dict], prefix: str, line: str = "line") -> str:
     return f"{prefix} median: point {p:.1f} ms, {line} {q:.1f} ms, {line}/point {ratio:.1f}x"
 
 
+def _query_ratio(row: dict) -> float:
+    """A whole query's time, matching included: the verified line server's over the (unverified) point server's."""
+    return (row["match_ms"] + row["line_v_ms"]) / (row["match_ms"] + row["point_ms"])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=24)
@@ -153,14 +160,15 @@ def main() -> None:
     table = Table(title="pose from the same matches: point PnP (pycolmap) vs line cloud (p6L LO-RANSAC)")
     for col in ("case", "matches", "point ms", "line ms", "line/point", "inliers p/l", "ok p/l",
                 "error p (cm, deg)", "error l (cm, deg)", "kept", "verify ms", "point+2v ms", "line+2v ms",
-                "line+2v/point", "ok p/l +2v"):
+                "line+2v/point", "ok p/l +2v", "match ms", "query line+2v/point"):
         table.add_column(col, justify="left" if col == "case" else "right")
     for r in rows:
-        verified = ["-"] * 6
+        verified = ["-"] * 8
         if "kept" in r:
             verified = [str(r["kept"]), f"{r['verify_ms']:.1f}", f"{r['point_v_ms']:.1f}", f"{r['line_v_ms']:.1f}",
                         f"{r['line_v_ms'] / r['point_ms']:.1f}x",
-                        f"{'y' if r['point_v_ok'] else 'n'}/{'y' if r['line_v_ok'] else 'n'}"]
+                        f"{'y' if r['point_v_ok'] else 'n'}/{'y' if r['line_v_ok'] else 'n'}",
+                        f"{r['match_ms']:.1f}", f"{_query_ratio(r):.1f}x"]
         table.add_row(r["case"], str(r["matches"]), f"{r['point_ms']:.1f}", f"{r['line_ms']:.1f}",
                       f"{r['line_ms'] / r['point_ms']:.1f}x", f"{r['point_inliers']}/{r['line_inliers']}",
                       f"{'y' if r['point_ok'] else 'n'}/{'y' if r['line_ok'] else 'n'}",
@@ -168,7 +176,10 @@ def main() -> None:
                       *verified)
     table.caption = "; ".join([_median_ratio(rows, "scene") + " (target <= 3x)", _median_ratio(rows, "wrong room"),
                                _median_ratio(rows, "scene", "line_v") + " (+2v)",
-                               _median_ratio(rows, "wrong room", "line_v") + " (+2v)", "ms: median of the repeats"])
+                               _median_ratio(rows, "wrong room", "line_v") + " (+2v)",
+                               *(f"{prefix} median whole query (matching included), line+2v/point "
+                                 f"{np.median([_query_ratio(r) for r in rows if r['case'].startswith(prefix)]):.1f}x"
+                                 for prefix in ("scene", "wrong room")), "ms: median of the repeats"])
     Console(width=200).print(table)
 
 

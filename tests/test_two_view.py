@@ -110,11 +110,11 @@ def test_no_pair_of_another_room_passes_so_no_ransac_runs(servers, other_room):
         assert not result.success and result.num_matches == before and result.num_inliers == 0
 
 
+@pytest.mark.parametrize("servers", ["line-cloud"], indirect=True)
 def test_the_line_count_is_read_on_the_matches_before_the_check(servers, scene):
     """A line server's success count comes from the unverified number of matches, as without the check."""
     plain, verified = servers
-    if getattr(verified.data, "lines", None) is None:
-        pytest.skip("point map")
+    assert verified.data.lines is not None
     seq = load_sequence(scene)
     query = plain.extractor(seq.rgb(seq.query_frames[0]))
     kept, before = verified.verified_correspondences(query, verified.candidates(query))
