@@ -79,8 +79,8 @@ from synthleak.config import StudyConfig, config_from_dict
 from synthleak.core.dataset import (
     DatasetError,
     Sequence,
-    colmap_camera_model,
     load_sequence,
+    pycolmap_camera,
     read_index,
     read_json,
 )
@@ -392,8 +392,7 @@ def measure(pair: Pair, photo: PhotoB, feats_a: Features, pts: np.ndarray, finit
     use = finite[m[:, 1]]
     if use.sum() < max(tier.min_inliers, 4):
         return out
-    model, params = colmap_camera_model(cam)
-    pc_cam = pycolmap.Camera(model=model, width=cam.width, height=cam.height, params=params)
+    pc_cam = pycolmap_camera(cam)
     options = pycolmap.AbsolutePoseEstimationOptions()
     options.ransac.max_error = float(tier.pnp_max_error_px)
     options.ransac.random_seed = RANSAC_SEED

@@ -33,7 +33,7 @@ from rich.console import Console
 from rich.table import Table
 
 from synthleak.config import LocalizeConfig
-from synthleak.core.dataset import load_sequence
+from synthleak.core.dataset import load_sequence, pycolmap_camera
 from synthleak.core.types import Camera
 from synthleak.geometry.poses import camera_centre, look_at, rotation_error_deg
 from synthleak.localize import Localizer, build_map
@@ -108,8 +108,7 @@ def bench_synthetic(outliers: float, repeat: int, max_error_px: float = 12.0) ->
     bad = rng.random(len(uv)) < outliers
     uv[bad] = rng.uniform([0, 0], [camera.width, camera.height], (int(bad.sum()), 2))
     d, a = lift_to_lines(pts, 1)
-    cam = pycolmap.Camera(model="PINHOLE", width=camera.width, height=camera.height,
-                          params=[camera.fx, camera.fy, camera.cx, camera.cy])
+    cam = pycolmap_camera(camera)
     options = pycolmap.AbsolutePoseEstimationOptions()
     options.ransac.max_error, options.ransac.random_seed = max_error_px, 0
     row = {"case": f"synthetic {outliers:.0%} outliers", "matches": len(uv)}

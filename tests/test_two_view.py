@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from synthleak.config import ConfigError, LocalizeConfig, config_to_dict, load_config
-from synthleak.core.dataset import load_sequence
+from synthleak.core.dataset import load_sequence, pycolmap_camera
 from synthleak.core.types import Camera
 from synthleak.geometry.poses import camera_centre, look_at, rotation_error_deg
 from synthleak.localize import Localizer, build_map
 from synthleak.localize import testscene as ts
 from synthleak.localize.line_cloud import equivalent_line_threshold, line_min_inliers
-from synthleak.localize.two_view import colmap_camera, essential_inliers
+from synthleak.localize.two_view import essential_inliers
 from synthleak.seeding import derive_seed
 
 CAMERA = Camera.from_hfov(320, 240, 65.0)
@@ -44,7 +44,7 @@ def test_essential_inliers_are_the_true_matches_of_two_exact_views():
     uv_a, uv_b = uv_a[seen] + rng.normal(0, 0.5, (len(seen), 2)), uv_b[seen] + rng.normal(0, 0.5, (len(seen), 2))
     wrong = rng.random(len(seen)) < 0.4
     uv_b[wrong] = rng.uniform([0, 0], [CAMERA.width, CAMERA.height], (int(wrong.sum()), 2))
-    cam = colmap_camera(CAMERA)
+    cam = pycolmap_camera(CAMERA)
     mask = essential_inliers(uv_a, uv_b, cam, cam, 4.0)
     assert mask[~wrong].mean() > 0.98, mask[~wrong].mean()
     assert mask[wrong].mean() < 0.08, mask[wrong].mean()

@@ -72,6 +72,14 @@ def colmap_camera_model(camera: Camera) -> tuple[str, list[float]]:
     return "FULL_OPENCV", base + [float(c) for c in camera.dist_coeffs] + [0.0, 0.0, 0.0]
 
 
+def pycolmap_camera(camera: Camera) -> Any:
+    """``camera`` as a ``pycolmap.Camera`` of :func:`colmap_camera_model`'s model and params."""
+    import pycolmap
+
+    model, params = colmap_camera_model(camera)
+    return pycolmap.Camera(model=model, width=camera.width, height=camera.height, params=params)
+
+
 def scaled_camera(camera: Camera, width: int, height: int) -> Camera:
     """``camera`` for its image resized to ``width`` x ``height`` (corners to corners: ``fx, cx *= W' / W`` in the
     pixel-corner convention of :class:`Camera`; distortion, in normalised coordinates, unchanged)."""

@@ -12,7 +12,7 @@ import numpy as np
 import pycolmap
 
 from synthleak.config import LocalizeConfig
-from synthleak.core.dataset import camera_dist_coeffs, colmap_camera_model
+from synthleak.core.dataset import camera_dist_coeffs, pycolmap_camera
 from synthleak.core.types import Camera
 from synthleak.localize.defense import DefenseDecision, DefensePolicy
 from synthleak.localize.features import Features
@@ -189,8 +189,7 @@ class Localizer:
 
     def correspondences(self, query: Features, candidates: np.ndarray) -> np.ndarray:
         """(M, 2) unique ``(query keypoint, map point)`` matches against the ``candidates`` map images, sorted."""
-        return self._union([np.stack([m[:, 0], self._db[i][1][m[:, 1]]], axis=1)
-                            for i, m in zip(candidates, self.pair_matches(query, candidates), strict=True)])
+        return self._point_matches(candidates, self.pair_matches(query, candidates))
 
     def verified_correspondences(self, query: Features, candidates: np.ndarray, camera: Camera | None = None
                                  ) -> tuple[np.ndarray, int]:
@@ -198,8 +197,7 @@ class Localizer:
         two_view_min_inliers``, :mod:`synthleak.localize.two_view`; all of them when it is 0), and how many
         matches there were before it. ``camera``: the query's (default: the map's)."""
         matches = self.pair_matches(query, candidates)
-        every = self._union([np.stack([m[:, 0], self._db[i][1][m[:, 1]]], axis=1)
-                             for i, m in zip(candidates, matches, strict=True)])
+        every = self._point_matches(candidates, matches)
         if not self.two_view_min_inliers:
             return every, len(every)
         return self.verify_pairs(query, candidates, matches, camera), len(every)
@@ -214,6 +212,11 @@ class Localizer:
                                 self.two_view_min_inliers if min_inliers is None else int(min_inliers),
                                 seed=RANSAC_SEED)
         return self._union(kept)
+
+    def _point_matches(self, candidates: np.ndarray, matches: list[np.ndarray]) -> np.ndarray:
+        """The union of the ``candidates``' pair ``matches`` as ``(query keypoint, map point)``, sorted."""
+        return self._union([np.stack([m[:, 0], self._db[i][1][m[:, 1]]], axis=1)
+                            for i, m in zip(candidates, matches, strict=True)])
 
     @staticmethod
     def _union(parts: list[np.ndarray]) -> np.ndarray:
@@ -230,8 +233,7 @@ class Localizer:
         num_matches = len(corr) if num_matches is None else int(num_matches)
         if len(corr) < max(self.min_inliers, 3):  # P3P: 3 matches (COLMAP, HLoc)
             return LocalizationResult(False, num_matches=num_matches)
-        model, params = colmap_camera_model(camera)  # PINHOLE, or OPENCV with the query's lens distortion
-        cam = pycolmap.Camera(model=model, width=camera.width, height=camera.height, params=params)
+        cam = pycolmap_camera(camera)  # PINHOLE, or OPENCV with the query's lens distortion
         options = pycolmap.AbsolutePoseEstimationOptions()
         options.ransac.max_error = float(self.max_error_px)
         options.ransac.random_seed = RANSAC_SEED

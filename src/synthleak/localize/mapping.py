@@ -18,7 +18,7 @@ import pycolmap
 
 from synthleak.atomic_io import atomic_write_text
 from synthleak.config import LocalizeConfig
-from synthleak.core.dataset import DatasetError, Sequence, camera_dist_coeffs, colmap_camera_model, load_sequence
+from synthleak.core.dataset import DatasetError, Sequence, camera_dist_coeffs, load_sequence, pycolmap_camera
 from synthleak.localize.deep import numerics_record
 from synthleak.localize.features import Features
 from synthleak.localize.pairs import pairs_from_poses
@@ -249,8 +249,7 @@ def _write_colmap(path: Path, seq: Sequence, names, poses, features, points) -> 
     for name in names:
         camera_ids.setdefault(seq.camera_of(name), len(camera_ids) + 1)
     for cam, camera_id in camera_ids.items():
-        model, params = colmap_camera_model(cam)  # PINHOLE fx fy cx cy, or OPENCV / FULL_OPENCV
-        camera = pycolmap.Camera(model=model, width=cam.width, height=cam.height, params=params)
+        camera = pycolmap_camera(cam)  # PINHOLE fx fy cx cy, or OPENCV / FULL_OPENCV
         camera.camera_id = camera_id
         rec.add_camera_with_trivial_rig(camera)
     for i, (name, pose, f) in enumerate(zip(names, poses, features, strict=True)):

@@ -15,17 +15,11 @@ from __future__ import annotations
 import numpy as np
 import pycolmap
 
-from synthleak.core.dataset import colmap_camera_model
+from synthleak.core.dataset import pycolmap_camera
 from synthleak.core.types import Camera
 
 ESSENTIAL_MIN_MATCHES = 5
 """The 5-point solver's minimal sample: a pair with fewer matches cannot be verified."""
-
-
-def colmap_camera(camera: Camera) -> pycolmap.Camera:
-    """``camera`` as a pycolmap camera (``PINHOLE`` or ``OPENCV`` with its lens distortion)."""
-    model, params = colmap_camera_model(camera)
-    return pycolmap.Camera(model=model, width=camera.width, height=camera.height, params=params)
 
 
 def essential_inliers(query_keypoints: np.ndarray, map_keypoints: np.ndarray, query_camera: pycolmap.Camera,
@@ -54,7 +48,7 @@ def verified_matches(query_keypoints: np.ndarray, pairs: list[tuple[np.ndarray, 
     """Per pair ``(matches (M, 2) query keypoint / map keypoint, map keypoints (K, 2), map points (K,))``, the
     ``(query keypoint, map point)`` matches (M', 2) that are essential-matrix inliers of a pair with at least
     ``min_inliers`` of them (an empty array for any other pair)."""
-    qcam, mcam = colmap_camera(query_camera), colmap_camera(map_camera)
+    qcam, mcam = pycolmap_camera(query_camera), pycolmap_camera(map_camera)
     out = []
     for matches, map_keypoints, map_points in pairs:
         keep = np.zeros(len(matches), bool)
