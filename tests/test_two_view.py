@@ -52,6 +52,34 @@ def test_essential_inliers_are_the_true_matches_of_two_exact_views():
     assert not essential_inliers(uv_a[:4], uv_b[:4], cam, cam, 4.0).any()  # under the 5-point sample: none
 
 
+def test_the_trial_cap_from_min_inliers_keeps_every_decision():
+    """``min_inliers`` caps RANSAC's trials at what finds a model with that many inliers at 0.999 confidence:
+    on pairs of 15 to 60 matches, some with 15 or more true ones and some all chance, each pair's verdict (at
+    least 15 inliers or not) is the uncapped one, and a pair kept keeps nearly the same inliers."""
+    rng = np.random.default_rng(derive_seed(0, "two-view-cap-test"))
+    a = look_at([2.5, -2.0, 1.4], [2.3, 2.0, 1.1])
+    b = look_at([3.1, -1.8, 1.5], [2.0, 2.0, 1.0])
+    pts = rng.uniform([0.0, 0.0, 0.0], [5.0, 4.0, 2.6], (3000, 3))
+    uv_a, seen_a = project(a, pts, CAMERA)
+    uv_b, seen_b = project(b, pts, CAMERA)
+    seen = np.nonzero(seen_a & seen_b)[0]
+    cam = pycolmap_camera(CAMERA)
+    verdicts = []
+    for trial in range(40):
+        n, true = int(rng.integers(15, 61)), int(rng.integers(0, 2)) * int(rng.integers(VERIFIED + 2, 31))
+        pick = rng.choice(seen, n, replace=False)
+        qa = uv_a[pick] + rng.normal(0, 0.5, (n, 2))
+        qb = uv_b[pick] + rng.normal(0, 0.5, (n, 2))
+        qb[min(true, n):] = rng.uniform([0, 0], [CAMERA.width, CAMERA.height], (n - min(true, n), 2))
+        full = essential_inliers(qa, qb, cam, cam, 4.0, seed=trial)
+        capped = essential_inliers(qa, qb, cam, cam, 4.0, seed=trial, min_inliers=VERIFIED)
+        assert (full.sum() >= VERIFIED) == (capped.sum() >= VERIFIED), (n, true, full.sum(), capped.sum())
+        if full.sum() >= VERIFIED:
+            assert (full == capped).mean() > 0.9
+        verdicts.append(full.sum() >= VERIFIED)
+    assert 5 < sum(verdicts) < 35  # both verdicts were tested
+
+
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("twoview") / "room_000"
