@@ -30,17 +30,24 @@ def project(pose: np.ndarray, pts: np.ndarray, camera: Camera) -> tuple[np.ndarr
     return uv, (pc[:, 2] > 0.3) & np.all((uv > 0) & (uv < [camera.width, camera.height]), axis=1)
 
 
-def test_essential_inliers_are_the_true_matches_of_two_exact_views():
-    """Two views 0.6 m apart of points in a room, 40 % of the matches replaced by random pixels: the true matches
-    (0.5 px noise) are inliers at 4 px, and almost no random one is (a random pixel lies in the 8 px wide band
-    around its epipolar line with probability about 2 %)."""
-    rng = np.random.default_rng(derive_seed(0, "two-view-test"))
+def two_exact_views(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two views 0.6 m apart of 3000 random points in a room: both views' pixels of every point, and the
+    indices of the points both see."""
     a = look_at([2.5, -2.0, 1.4], [2.3, 2.0, 1.1])
     b = look_at([3.1, -1.8, 1.5], [2.0, 2.0, 1.0])
     pts = rng.uniform([0.0, 0.0, 0.0], [5.0, 4.0, 2.6], (3000, 3))
     uv_a, seen_a = project(a, pts, CAMERA)
     uv_b, seen_b = project(b, pts, CAMERA)
-    seen = np.nonzero(seen_a & seen_b)[0][:300]
+    return uv_a, uv_b, np.nonzero(seen_a & seen_b)[0]
+
+
+def test_essential_inliers_are_the_true_matches_of_two_exact_views():
+    """Two views 0.6 m apart of points in a room, 40 % of the matches replaced by random pixels: the true matches
+    (0.5 px noise) are inliers at 4 px, and almost no random one is (a random pixel lies in the 8 px wide band
+    around its epipolar line with probability about 2 %)."""
+    rng = np.random.default_rng(derive_seed(0, "two-view-test"))
+    uv_a, uv_b, seen = two_exact_views(rng)
+    seen = seen[:300]
     uv_a, uv_b = uv_a[seen] + rng.normal(0, 0.5, (len(seen), 2)), uv_b[seen] + rng.normal(0, 0.5, (len(seen), 2))
     wrong = rng.random(len(seen)) < 0.4
     uv_b[wrong] = rng.uniform([0, 0], [CAMERA.width, CAMERA.height], (int(wrong.sum()), 2))
@@ -57,12 +64,7 @@ def test_the_trial_cap_from_min_inliers_keeps_every_decision():
     on pairs of 15 to 60 matches, some with 15 or more true ones and some all chance, each pair's verdict (at
     least 15 inliers or not) is the uncapped one, and a pair kept keeps nearly the same inliers."""
     rng = np.random.default_rng(derive_seed(0, "two-view-cap-test"))
-    a = look_at([2.5, -2.0, 1.4], [2.3, 2.0, 1.1])
-    b = look_at([3.1, -1.8, 1.5], [2.0, 2.0, 1.0])
-    pts = rng.uniform([0.0, 0.0, 0.0], [5.0, 4.0, 2.6], (3000, 3))
-    uv_a, seen_a = project(a, pts, CAMERA)
-    uv_b, seen_b = project(b, pts, CAMERA)
-    seen = np.nonzero(seen_a & seen_b)[0]
+    uv_a, uv_b, seen = two_exact_views(rng)
     cam = pycolmap_camera(CAMERA)
     verdicts = []
     for trial in range(40):
