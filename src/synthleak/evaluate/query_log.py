@@ -13,14 +13,19 @@ import numpy as np
 
 from synthleak.evaluate.defense_online import localized_without_defense, log_fields
 from synthleak.localize.defense import DefensePolicy
+from synthleak.localize.wire_pose import as_served
 
 
 def query_line(item: Mapping[str, Any], tier: str, room: str, result: Any, defense: DefensePolicy | None,
-               remote: bool) -> str:
+               remote: bool, served: bool = False) -> str:
     """The log line of one query: the plan entry ``item`` (its ``_``-prefixed keys left out) and the server's
-    ``result``; ``remote``: an HTTP answer (it names no retrieved map images, so the funnel step stays unknown)."""
+    ``result``; ``remote``: an HTTP answer (it names no retrieved map images, so the funnel step stays unknown).
+    ``served``: the pose came over HTTP already; an in-process one is logged as the service protocol would carry
+    it (:func:`~synthleak.localize.wire_pose.as_served`), so in-process and HTTP studies log the same bits."""
     plan = {k: v for k, v in item.items() if not k.startswith("_")}
     pose = result.cam_from_world
+    if pose is not None and not served:
+        pose = as_served(pose)
     return json.dumps({
         **plan, "tier": tier, "room": room, "success": bool(result.success),
         "cam_from_world": None if pose is None else np.asarray(pose).tolist(),

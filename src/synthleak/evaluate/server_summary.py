@@ -5,7 +5,8 @@ Utility: the genuine held-out queries localized (walk-through frames and close-u
 Leakage: the attacker queries localized (over GT-present and GT-absent pairs), presence P/R and placement success
 (GT-present pairs placed within the first threshold pair) with Alg. 1 and with the best aligner. Defense: the
 sweep point of ``[defense]``'s own policy (genuine queries kept, attacker queries rejected). The plot puts each
-server, and each server behind each swept defense, at (genuine localized, attacker queries localized).
+server, and each server behind each swept defense, at (genuine localized, attacker queries of GT-present pairs
+localized: the queries that can place an object).
 """
 
 from __future__ import annotations
@@ -101,23 +102,25 @@ def server_summary_markdown(table: Sequence[dict], thresholds: tuple, policy: tu
 
 
 def plot_utility_vs_leakage(table: Sequence[dict], tradeoff: Sequence[dict], out: Path) -> Path:
-    """Genuine queries localized (x) against attacker queries localized (y): one filled point per server, and a
-    hollow one per swept defense setting (both shares times the setting's kept / not rejected share)."""
+    """Genuine queries localized (x) against attacker queries of GT-present pairs localized (y, the ones that can
+    place an object; its axis ends a little above the largest share, as shares of a few per cent are usual): one
+    filled point per server, and a hollow one per swept defense setting (both shares times the setting's kept /
+    not rejected share)."""
     fig = Figure(figsize=(6.4, 4.8))
     ax = fig.add_subplot()
-    shown = [r for r in table if r["genuine_localized"] is not None and r["attacker_localized"] is not None]
+    shown = [r for r in table if r["genuine_localized"] is not None and r["attacker_localized_present"] is not None]
     for i, row in enumerate(shown):
         colour, marker = _colour(i), _MARKERS[i % len(_MARKERS)]
-        x, y = row["genuine_localized"], row["attacker_localized"]
+        x, y = row["genuine_localized"], row["attacker_localized_present"]
         points = [t for t in tradeoff if t.get("tier") == row["server"]]
         if points:
             ax.scatter([x * t["genuine_kept"] for t in points], [y * (1 - t["attacker_rejected"]) for t in points],
                        facecolors="none", edgecolors=colour, marker=marker, s=18, linewidths=0.8)
         ax.scatter([x], [y], color=colour, marker=marker, s=42, label=row["server"], zorder=3)
     ax.set_xlabel("genuine queries localized (utility)")
-    ax.set_ylabel("attacker queries localized (leakage)")
+    ax.set_ylabel("attacker queries of present objects localized (leakage)")
     ax.set_xlim(0, 1.02)
-    ax.set_ylim(0, 1.02)
+    ax.set_ylim(0, min(1.02, max([0.05] + [1.15 * r["attacker_localized_present"] for r in shown])))
     ax.grid(alpha=0.3)
     if shown:
         ax.legend(fontsize=7, loc="best")

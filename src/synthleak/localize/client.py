@@ -12,9 +12,9 @@ import numpy as np
 
 from synthleak.core.dataset import camera_dist_coeffs, encode_png
 from synthleak.core.types import Camera
-from synthleak.geometry.poses import make_pose, matrix_from_quat_wxyz
 from synthleak.localize.localizer import LocalizationResult
 from synthleak.localize.servers import base_tier
+from synthleak.localize.wire_pose import decode_pose
 
 
 class LocalizationServiceError(RuntimeError):
@@ -82,9 +82,7 @@ class HttpLocalizer:
                       "retrieved": [str(name) for name in data.get("retrieved", [])]}
         if not data.get("success"):
             return HttpLocalizationResult(False, timings=timings, **labels)
-        pose = data["cam_from_world"]
-        matrix = make_pose(matrix_from_quat_wxyz(pose["rotation"]), pose["translation"])
-        return HttpLocalizationResult(True, matrix, timings=timings, **labels)
+        return HttpLocalizationResult(True, decode_pose(data["cam_from_world"]), timings=timings, **labels)
 
 
 URL_FIELDS = ("server", "tier", "room", "room_index")

@@ -42,11 +42,11 @@ from starlette.requests import ClientDisconnect
 from synthleak.config import LocalizeConfig
 from synthleak.core.dataset import OpenCVCamera
 from synthleak.core.types import Camera
-from synthleak.geometry.poses import quat_wxyz_from_matrix
 from synthleak.localize.defense import DefensePolicy
 from synthleak.localize.images import MAX_QUERY_PIXELS, ImageTooLargeError, InvalidImageError, read_size
 from synthleak.localize.localizer import LocalizationResult, Localizer
 from synthleak.localize.pool import LocalizerPool, WorkerCrashedError
+from synthleak.localize.wire_pose import encode_pose
 
 MAX_UPLOAD_BYTES = 32 * 1024 * 1024
 MIN_IMAGE_SIDE = 16
@@ -264,10 +264,7 @@ def response_from_result(result: LocalizationResult, labels: bool = False) -> di
         "retrieved": [str(name) for name in result.retrieved]}
     if not result.success or result.cam_from_world is None:
         return {"success": False, **extra}
-    pose = result.cam_from_world
-    return {"success": True, "cam_from_world": {
-        "rotation": [float(x) for x in quat_wxyz_from_matrix(pose[:3, :3])],
-        "translation": [float(x) for x in pose[:3, 3]]}, **extra}
+    return {"success": True, "cam_from_world": encode_pose(result.cam_from_world), **extra}
 
 
 def find_maps(root: Path) -> dict[tuple[str, str], Path]:

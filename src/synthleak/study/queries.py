@@ -70,7 +70,8 @@ def query_task(task: QueryTask) -> int:
         else:
             result = localizer.localize(Path(entry["_image"]).read_bytes(), camera)
         remote = bool(task.server_url) and not getattr(result, "labelled", False)  # labelled: as in process
-        lines.append(query_line(entry, task.tier, task.room, result, task.defense, remote=remote))
+        lines.append(query_line(entry, task.tier, task.room, result, task.defense, remote=remote,
+                                served=bool(task.server_url)))
     atomic_write_text(task.part_file, "".join(line + "\n" for line in lines))
     return len(lines)
 
