@@ -164,3 +164,23 @@ def test_newer_code_formats_redo_the_renders(ci_tiny_study: Path, tmp_path: Path
     run_study(load_config("ci-tiny"), study, progress=False)
     assert counted["frames"] > 0  # rendered again
     assert list(study.glob("dataset.*"))  # the older renders kept aside
+
+
+def test_a_query_log_redone_with_other_bytes_reruns_the_attack(ci_tiny_study: Path, tmp_path: Path) -> None:
+    """``--force queries`` after a code change can give other bytes under the same content key: the attack and the
+    report are made again from them, never left from the old logs."""
+    study = _copy(ci_tiny_study, tmp_path)
+    results = study / "results" / "results.json"
+    log = next(p for p in sorted(study.glob("queries/*/*/queries.jsonl"))
+               if any(json.loads(line)["success"] and json.loads(line)["attacker_object"]
+                      for line in p.read_text().splitlines()))
+    records = [json.loads(line) for line in log.read_text().splitlines()]
+    for record in records:  # as a changed server would answer: the attacker's poses 2 m away
+        if record["success"] and record["attacker_object"]:
+            record["cam_from_world"][0][3] += 2.0
+    log.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in records))
+    run_study(load_config("ci-tiny"), study, progress=False)
+    assert results.read_bytes() != (ci_tiny_study / "results" / "results.json").read_bytes()
+    made = results.stat().st_mtime_ns, results.read_bytes()
+    run_study(load_config("ci-tiny"), study, progress=False)  # and again: a cache hit on the new bytes
+    assert (results.stat().st_mtime_ns, results.read_bytes()) == made

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 from typing import Any
 
@@ -70,14 +71,20 @@ def attacker_ups(config: StudyConfig, objects: list[tuple[Any, Any, dict[str, An
     return {obj: {name: (up, scene_up) for name, scene_up in scene.items()} for obj, up in local_up.items()}
 
 
+def _digest(log: Path) -> str | None:
+    """The sha256 of a query log's bytes (None while it is missing)."""
+    return hashlib.sha256(log.read_bytes()).hexdigest() if log.is_file() else None
+
+
 class AttackStage(Stage):
-    """``results/results.{csv,json}``, keyed by the query logs and the ``[attack]`` section (a threshold change
-    re-runs only the attack and the report)."""
+    """``results/results.{csv,json}``, keyed by the query logs (their content keys and their bytes: a log redone
+    under the same key, ``--force queries`` after a code change, re-runs the attack) and the ``[attack]`` section
+    (a threshold change re-runs only the attack and the report)."""
 
     name = "attack"
 
     def units(self, ctx: StudyContext) -> list[Unit]:
-        query_keys = [done_key(log.parent) for _, log in sorted(ctx.logs().items())]
+        query_keys = [(done_key(log.parent), _digest(log)) for _, log in sorted(ctx.logs().items())]
         return [Unit(ctx.paths.results, cache_key("attack", query_keys, ctx.section("attack")))]
 
     def make(self, ctx: StudyContext, todo: list[Unit]) -> list[dict[str, Any]]:
