@@ -22,6 +22,7 @@ from typing import Any
 from synthleak.evaluate.defense_sweep import passes_defense
 from synthleak.evaluate.tables import group_rows, placement_stats, precision_recall
 from synthleak.localize.defense import DefensePolicy
+from synthleak.localize.wire_pose import as_served
 
 
 def online_policy(defense: Any) -> DefensePolicy | None:
@@ -36,8 +37,9 @@ def log_fields(result: Any, policy: DefensePolicy | None) -> dict[str, Any]:
         return {}
     decision = getattr(result, "defense", None)
     fields: dict[str, Any] = {"defense_accepted": None if decision is None else bool(decision.accepted)}
-    if result.withheld_cam_from_world is not None:
-        fields["withheld_cam_from_world"] = [[float(v) for v in row] for row in result.withheld_cam_from_world]
+    if result.withheld_cam_from_world is not None:  # as the server would have sent it without the defense
+        withheld = as_served(result.withheld_cam_from_world)
+        fields["withheld_cam_from_world"] = [[float(v) for v in row] for row in withheld]
     return fields
 
 
