@@ -120,6 +120,34 @@ def test_server_urls_templates_maps_lists_and_plain_urls():
         server_urls("http://h:9", PAIRS, ROOMS, listed[:3])
 
 
+def _closed_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.mark.parametrize("template", ["", "/{server}/{room}"])
+def test_a_study_against_no_service_fails_before_it_renders(tmp_path, capsys, template):
+    """A ``--server`` URL where nothing listens is one line naming it, before any render (it used to render and
+    build maps for minutes, then end in an httpx traceback)."""
+    from synthleak.cli import main
+
+    url = f"http://127.0.0.1:{_closed_port()}{template}"
+    assert main(["study", "ci-tiny", "--out", str(tmp_path / "study"), "--server", url, "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and url in err and "no service answers" in err
+    assert not (tmp_path / "study" / "dataset").exists()
+
+
+def test_a_service_gone_mid_study_is_named():
+    from synthleak.errors import ServiceUnreachableError
+    from synthleak.localize.client import HttpLocalizer
+
+    url = f"http://127.0.0.1:{_closed_port()}/sift/room_000"
+    with HttpLocalizer(url) as client, pytest.raises(ServiceUnreachableError, match=f"POST {url}/localize"):
+        client.localize(np.zeros((8, 8, 3), np.uint8))
+
+
 def test_multi_map_app_routes_lists_and_answers_labels_only_when_asked(ci_tiny_study):
     from fastapi.testclient import TestClient
 

@@ -113,6 +113,31 @@ def test_force_render_redoes_only_missing_frames(ci_tiny_study: Path, tmp_path: 
     assert victim.read_bytes() == victim_bytes
 
 
+def test_force_maps_redoes_what_reads_the_maps(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:
+    """Maps rebuilt by ``--force maps`` (after a code change: other bytes, same key) are queried again, and the
+    attack and the report are made again from those queries; renders and query features are not redone."""
+    study = _copy(ci_tiny_study, tmp_path)
+    results = study / "results" / "results.json"
+    results_made = results.stat().st_mtime_ns
+    run_study(load_config("ci-tiny"), study, force=["maps"], progress=False)
+    from synthleak.study import read_query_log
+
+    sent = sum(len(read_query_log(p)) for p in sorted(study.glob("queries/*/*/queries.jsonl")))
+    assert counted["maps"] == 2 and counted["queries"] == sent > 0
+    assert counted["renderer"] == counted["frames"] == counted["features"] == 0
+    assert results.stat().st_mtime_ns != results_made  # the attack ran again
+    assert results.read_bytes() == (ci_tiny_study / "results" / "results.json").read_bytes()  # same code: same bytes
+
+
+def test_forced_stages_reach_every_reader() -> None:
+    from synthleak.study import forced_stages
+
+    assert forced_stages(["maps"]) == {"maps", "queries", "attack", "report"}
+    assert forced_stages(["sfm", "features"]) == {"sfm", "features", "queries", "attack", "report"}
+    assert forced_stages(["render"]) == {"render"}  # it only renders missing frames: nothing after it changes
+    assert forced_stages(["sweep"]) == {"sweep", "report"}
+
+
 def test_unknown_force_stage(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"unknown stage.*'frames'.*attack, sweep, world-sweep, report"):
         run_study(load_config("ci-tiny"), tmp_path, force=["frames"], progress=False)

@@ -367,8 +367,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("config")
     p.add_argument("--out", required=True)
     p.add_argument("--force", action="append", metavar="STAGE",
-                   help="redo a stage: render, maps, features, queries, attack, sweep, world-sweep, report "
-                        "(repeatable; sweep / world-sweep redo every stage of their points)")
+                   help="redo a stage and the stages that read it: render (missing frames only), maps, features, "
+                        "sfm, queries, attack, sweep, world-sweep, report (repeatable; sweep / world-sweep redo "
+                        "every stage of their points)")
     p.add_argument("--server", metavar="URL",
                    help="attack running HTTP services instead of in-process localizers: one URL (a single map, or "
                         "a service listing its maps at GET /maps) or a template with {server} {tier} {room} "

@@ -28,3 +28,8 @@ class UnknownNameError(SynthleakError, KeyError):
 
 class MissingDependencyError(SynthleakError, ImportError):
     """An optional dependency is not installed; the message says how to install it."""
+
+
+class ServiceUnreachableError(SynthleakError, ConnectionError):
+    """No localization service answers at a URL (nothing listens, a wrong host, a timeout); the message names the
+    URL."""

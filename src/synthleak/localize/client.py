@@ -12,6 +12,7 @@ import numpy as np
 
 from synthleak.core.dataset import camera_dist_coeffs, encode_png
 from synthleak.core.types import Camera
+from synthleak.errors import ServiceUnreachableError
 from synthleak.localize.localizer import LocalizationResult
 from synthleak.localize.servers import base_tier
 from synthleak.localize.wire_pose import decode_pose
@@ -64,8 +65,11 @@ class HttpLocalizer:
             dist = camera_dist_coeffs(camera)  # a distorting lens: its OpenCV k1 k2 p1 p2 k3 (optional)
             if dist is not None:
                 params |= dict(zip(("k1", "k2", "p1", "p2", "k3"), dist.tolist(), strict=True))
-        response = self._client.post(f"{self.url}/localize", content=body, params=params,
-                                     headers={"Content-Type": "application/octet-stream"})
+        try:
+            response = self._client.post(f"{self.url}/localize", content=body, params=params,
+                                         headers={"Content-Type": "application/octet-stream"})
+        except httpx.TransportError as exc:
+            raise ServiceUnreachableError(f"POST {self.url}/localize: no answer ({_reason(exc)})") from exc
         if response.status_code != 200:
             try:
                 message = response.json().get("detail", response.text)
@@ -127,6 +131,32 @@ def server_urls(url: str, pairs: Sequence[tuple[str, str]], rooms: Sequence[str]
                              f"to the same URL {target}: add {{server}} or {{room}} to the template")
         seen[target] = pair
     return out
+
+
+def check_reachable(url: str, timeout: float = 10.0) -> None:
+    """Fail early, before a study renders, when nothing answers at ``url`` (a ``--server`` URL or template): a
+    :class:`~synthleak.errors.ServiceUnreachableError` naming it. Any HTTP answer to ``GET /health`` passes (a
+    foreign service need not serve it); a template is checked at its host, unless the host is a placeholder."""
+    if not url.startswith(("http://", "https://")):
+        raise ValueError(f"--server {url}: not an http:// or https:// URL")
+    probe = f"{url.rstrip('/')}/health"
+    if is_url_template(url):
+        scheme, rest = url.split("//", 1)
+        host = rest.split("/", 1)[0]
+        if is_url_template(host):
+            return
+        probe = f"{scheme}//{host}/health"
+    try:
+        httpx.get(probe, timeout=timeout)
+    except httpx.TransportError as exc:
+        raise ServiceUnreachableError(f"--server {url}: no service answers at {probe} ({_reason(exc)}); start it "
+                                      "first, e.g. synthleak serve STUDY/maps (docs/service-protocol.md)") from exc
+    except httpx.InvalidURL as exc:
+        raise ValueError(f"--server {url}: not a URL ({exc})") from exc
+
+
+def _reason(exc: Exception) -> str:
+    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
 
 
 def list_maps(url: str, timeout: float = 10.0) -> list[dict] | None:

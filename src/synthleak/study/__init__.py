@@ -14,7 +14,8 @@ from __future__ import annotations
 from synthleak.plugins import lazy_exports
 
 _EXPORTS = {
-    "run_study": "run", "STAGES": "run", "STAGE_TYPES": "run", "check_force": "run", "study_stages": "run",
+    "run_study": "run", "STAGES": "run", "STAGE_TYPES": "run", "check_force": "run", "forced_stages": "run",
+    "study_stages": "run",
     "StudyPaths": "paths",
     "StudyContext": "context", "Stage": "context", "Unit": "context",
     "RenderStage": "render", "MapsStage": "maps", "FeaturesStage": "features", "QueriesStage": "queries",

@@ -82,6 +82,7 @@ class AttackStage(Stage):
     (a threshold change re-runs only the attack and the report)."""
 
     name = "attack"
+    reads = ("queries", "sfm")
 
     def units(self, ctx: StudyContext) -> list[Unit]:
         query_keys = [(done_key(log.parent), _digest(log)) for _, log in sorted(ctx.logs().items())]

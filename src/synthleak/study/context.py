@@ -115,6 +115,10 @@ class Stage(ABC):
     """The stage's name (``--force NAME``)."""
     label: ClassVar[str] = ""
     """Its row in the wall-time table (default: the name)."""
+    reads: ClassVar[tuple[str, ...]] = ()
+    """The stages whose outputs this one reads and whose forced remake can change them under an unchanged key (a
+    code change): forcing one of them forces this one too (:func:`~synthleak.study.run.forced_stages`). None
+    lists ``render``: a forced render only renders missing frames, the rest are kept."""
 
     def units(self, ctx: StudyContext) -> list[Unit]:
         """The stage's output folders and their content keys (none: the stage runs every time)."""

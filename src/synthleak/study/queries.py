@@ -98,6 +98,7 @@ class QueriesStage(Stage):
     The log is written from the parts, in plan order, and the parts are then removed."""
 
     name = "queries"
+    reads = ("maps", "features")
 
     def units(self, ctx: StudyContext) -> list[Unit]:
         policy = ctx.defense

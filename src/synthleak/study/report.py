@@ -32,6 +32,7 @@ class ReportStage(Stage):
     included); the wall-time table is the run's that made the report."""
 
     name = "report"
+    reads = ("attack", "sweep", "world-sweep")
 
     def units(self, ctx: StudyContext) -> list[Unit]:
         return [Unit(ctx.paths.plots, cache_key("report", config_to_dict(ctx.config), ctx.keys))]

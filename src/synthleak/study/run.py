@@ -41,6 +41,17 @@ def check_force(force: Sequence[str]) -> frozenset[str]:
     return frozenset(force)
 
 
+def forced_stages(force: Sequence[str]) -> frozenset[str]:
+    """The stages ``force`` redoes: the named ones and every stage that reads what they make (:attr:`Stage.reads`).
+    A forced stage can give other bytes under an unchanged key (the code changed), so what reads them is redone
+    too: ``--force maps`` redoes queries, attack and report. ``render`` forces nothing after it."""
+    forced = set(check_force(force))
+    for stage in STAGE_TYPES:  # in run order: one pass reaches every stage downstream
+        if forced & set(stage.reads):
+            forced.add(stage.name)
+    return frozenset(forced)
+
+
 def study_stages(ctx: StudyContext) -> list[Stage]:
     """The stages a study runs (no features stage against a remote server: it is sent the images)."""
     return [stage() for stage in STAGE_TYPES if not (stage is FeaturesStage and ctx.server_url is not None)]
@@ -58,10 +69,14 @@ def run_study(config: StudyConfig, out: Path, force: Sequence[str] = (), server_
     One study at a time per folder: while this runs it holds ``out/.study.lock``, and another ``run_study``
     on ``out`` (any process) raises :class:`~synthleak.study.lock.StudyLockedError` at once. Interrupted
     (Ctrl-C, SIGTERM), it ends its workers; what was finished is kept, and a rerun resumes."""
-    forced = check_force(force)
+    forced = forced_stages(force)
     check_config(config, config.name)  # a config built in Python fails here, not after the renders
     for profile in as_list(config.localize.profile):
         check_tiers_installed(config.localize.tiers, profile)
+    if server_url is not None:  # before the renders: a wrong address fails now, not after them
+        from synthleak.localize.client import check_reachable
+
+        check_reachable(server_url)
     paths = StudyPaths(Path(out))
     paths.root.mkdir(parents=True, exist_ok=True)
     with study_lock(paths.root):  # before any worker starts: a second run is refused at once
