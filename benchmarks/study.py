@@ -4,10 +4,15 @@
     python benchmarks/study.py study-small-pyrender --out /tmp/b --workers 2 --fresh
     python benchmarks/study.py ci-tiny --out /tmp/b --workers 2 --executor ray      # local Ray
 
-Prints one table (format kept stable so runs can be compared in notes)::
+Prints two tables (format kept stable so runs can be compared in notes): per stage, and per unit of work
+(ms of wall and CPU time per rendered frame, map image, localization, matched pair)::
 
     stage        wall_s    cpu_s  peak_rss_mib
     stages          ...
+    unit                   stage         count   wall_ms    cpu_ms
+    rendered frame         render          ...
+
+``--from-json FILE --out STUDY`` prints the tables of an earlier run again (from its ``--json`` file and folder).
 
 ``stages`` (USD stage writing) and ``render`` (frames + BOP extras + manifest) split the study's render
 stage; ``maps`` is feature extraction + matching + triangulation of every (tier, room) map; ``features``
@@ -164,6 +169,51 @@ def format_table(rows: dict[str, dict[str, float]], total: dict[str, float]) -> 
     return "\n".join(lines)
 
 
+def unit_counts(out: Path) -> dict[str, int]:
+    """How much work a finished study folder holds: frames rendered, map images (per tier and room, and per
+    server), query images whose features were extracted, localizations and (query, map image) pairs matched."""
+    frames = sum(1 for _ in out.glob("dataset/*/*/images/*.png"))
+    tier_images: dict[tuple[str, str], int] = {}
+    server_images = 0
+    for meta_path in out.glob("maps/*/*/map.json"):
+        meta = json.loads(meta_path.read_text())
+        server_images += int(meta["num_images"])
+        tier_images[(str(meta["tier"]), meta_path.parent.name)] = int(meta["num_images"])
+    features = sum(1 for _ in out.glob("features/*/**/*.npz"))
+    localizations = pairs = 0
+    for log in out.glob("queries/*/*/queries.jsonl"):
+        for line in log.read_text().splitlines():
+            if line.strip():
+                localizations += 1
+                pairs += len(json.loads(line).get("retrieved", []))
+    return {"frames": frames, "map_images_tier": sum(tier_images.values()), "map_images_server": server_images,
+            "query_features": features, "localizations": localizations, "pairs": pairs}
+
+
+UNITS = (("render", "frames", "rendered frame"), ("maps", "map_images_tier", "map image x tier"),
+         ("maps", "map_images_server", "map image x server"), ("features", "query_features", "query image x tier"),
+         ("queries", "localizations", "localization x server"), ("queries", "pairs", "matched pair"))
+"""Unit-cost rows: the stage whose time is divided, the count it is divided by, the unit's name."""
+
+
+def format_units(rows: dict[str, dict[str, float]], counts: dict[str, int]) -> str:
+    """ms of wall and CPU time per unit of work (a stage's time over its count: comparable across commits that
+    do the same work)."""
+    lines = [f"{'unit':<22} {'stage':<9} {'count':>9} {'wall_ms':>9} {'cpu_ms':>9}"]
+    for stage, key, unit in UNITS:
+        r, n = rows.get(stage, {"wall_s": 0.0, "cpu_s": 0.0}), counts.get(key, 0)
+        wall, cpu = (1e3 * r["wall_s"] / n, 1e3 * r["cpu_s"] / n) if n else (float("nan"), float("nan"))
+        lines.append(f"{unit:<22} {stage:<9} {n:>9} {wall:>9.1f} {cpu:>9.1f}")
+    return "\n".join(lines)
+
+
+def cpu_model() -> str:
+    for line in Path("/proc/cpuinfo").read_text().splitlines() if Path("/proc/cpuinfo").is_file() else []:
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return "unknown CPU"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("config", help="study config name or path (e.g. ci-tiny, study-small-pyrender)")
@@ -174,7 +224,16 @@ def main() -> None:
     parser.add_argument("--fresh", action="store_true", help="delete --out first (a cold run)")
     parser.add_argument("--force", nargs="*", default=[], help="stages to redo")
     parser.add_argument("--json", type=Path, help="also write the figures as JSON here")
+    parser.add_argument("--from-json", type=Path,
+                        help="print the tables of an earlier run (its --json file; --out its study folder) instead")
     args = parser.parse_args()
+    if args.from_json:
+        saved = json.loads(args.from_json.read_text())
+        print(f"# benchmarks/study.py {saved['config']} workers={saved['workers']} executor={saved['executor']} "
+              f"(from {args.from_json})")
+        print(format_table(saved["rows"], saved["total"]))
+        print(format_units(saved["rows"], unit_counts(args.out)))
+        return
 
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     from synthleak.config import load_config
@@ -201,10 +260,13 @@ def main() -> None:
                  "peak_rss_mib": max(sampler.overall, sampler.take_peak()) / 2**20}
     print(f"# benchmarks/study.py {config.name} workers={args.workers} executor={args.executor} "
           f"cpus={os.cpu_count()}")
+    print(f"# {cpu_model()}")
     print(format_table(timer.rows, total))
+    print(format_units(timer.rows, unit_counts(args.out)))
     if args.json:
         args.json.write_text(json.dumps({"config": config.name, "workers": args.workers, "executor": args.executor,
-                                         "rows": timer.rows, "total": total}, indent=1))
+                                         "cpu": cpu_model(), "rows": timer.rows, "total": total,
+                                         "units": unit_counts(args.out)}, indent=1))
 
 
 if __name__ == "__main__":

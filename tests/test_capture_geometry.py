@@ -275,3 +275,45 @@ def test_a_distorted_query_localizes_with_its_distortion(box_localizer):
     wrong = http._client.post("/localize", content=png, params={"fx": cam.fx, "fy": cam.fy, "cx": cam.cx,
                                                                 "cy": cam.cy, "k1": "nan"})
     assert wrong.status_code == 422 and "k1" in wrong.json()["detail"]
+
+
+def _focal_scale_every_halving(render: Camera, coeffs: tuple[float, ...]) -> float | None:
+    """The focal scale as 60 halvings of [0.5, 4] give it, none skipped (the reference of the early stop)."""
+    from synthleak.render.distortion import _pixel_grid, undistort_normalized
+
+    dist = np.array(coeffs)
+    u, v = _pixel_grid(render, border_only=True)
+
+    def inside(s: float) -> bool:
+        try:
+            x, y = undistort_normalized((u - render.cx) / (s * render.fx), (v - render.cy) / (s * render.fy), dist)
+        except ValueError:
+            return False
+        ur, vr = render.fx * x + render.cx, render.fy * y + render.cy
+        return bool(np.all((ur >= 0.5) & (ur <= render.width - 0.5) & (vr >= 0.5) & (vr <= render.height - 0.5)))
+
+    lo, hi = 0.5, 4.0
+    if not inside(hi):
+        return None
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if inside(mid) else (mid, hi)
+    return np.ceil(hi * 1e6) / 1e6
+
+
+def test_the_focal_scale_stops_halving_early_with_the_same_bits():
+    from synthleak.render.distortion import focal_scale
+
+    rng = np.random.default_rng(7)
+    for width, height in ((96, 72), (480, 360), (640, 480)):
+        render = Camera.from_hfov(width, height, 65.0)
+        for _ in range(12):
+            coeffs = (float(rng.uniform(-0.15, 0.05)), float(rng.uniform(-0.02, 0.06)),
+                      float(rng.normal(0, 5e-4)), float(rng.normal(0, 5e-4)), 0.0)
+            focal_scale.cache_clear()
+            assert focal_scale(render, coeffs) == _focal_scale_every_halving(render, coeffs), (width, coeffs)
+    # a camera drawn twice is computed once per process
+    focal_scale.cache_clear()
+    output_camera(render, CaptureParams(distortion=LENS))
+    output_camera(render, CaptureParams(distortion=LENS))
+    assert focal_scale.cache_info().hits == 1

@@ -28,7 +28,7 @@ def test_a_stopped_queries_stage_resumes_after_its_finished_tasks(ci_tiny_study,
     def stops_after_two(task):
         if len(calls) == 2:
             raise KeyboardInterrupt  # Ctrl-C in the middle of the stage
-        calls.append(task.part_file)
+        calls.extend(t.part_file for t in task.targets)
         return real_task(task)
 
     monkeypatch.setattr(queries_stage, "query_task", stops_after_two)
@@ -39,7 +39,8 @@ def test_a_stopped_queries_stage_resumes_after_its_finished_tasks(ci_tiny_study,
     assert not _logs(study)  # no server's log is written before all its tasks are done
 
     resumed = []
-    monkeypatch.setattr(queries_stage, "query_task", lambda task: resumed.append(task.part_file) or real_task(task))
+    monkeypatch.setattr(queries_stage, "query_task",
+                        lambda task: resumed.extend(t.part_file for t in task.targets) or real_task(task))
     run_study(config, study, progress=False)
     assert resumed and not set(resumed) & set(finished)  # the finished tasks are not run again
     assert _logs(study) == expected  # the same bytes as the uninterrupted run

@@ -157,6 +157,7 @@ def test_strict_configs_keep_their_content_keys(name):
     del before["localize"]["representation"]  # added after profiles, left out at "points" the same way
     del before["localize"]["servers"]  # likewise, left out while empty (every server of the config)
     del before["localize"]["two_view_min_inliers"]  # likewise, left out while 0 (no two-view check)
+    del before["localize"]["pnp_solver"]  # likewise, left out at its default (poselib)
     for key in ("capture_map", "capture_genuine", "capture_attacker",  # the render keys added after profiles
                 "light_map", "light_genuine", "light_attacker"):
         del before["render"][key]
@@ -238,3 +239,37 @@ def test_a_config_override_tunes_strict_servers_and_leaves_hlocs_values(room, tm
     assert hloc.localize(rgb).success
     assert profile_fixes("sift", "hloc") >= {"pnp_max_error_px", "min_inliers"}
     assert profile_fixes("sift", "strict") == frozenset() == profile_fixes("sift", ["strict", "hloc"])
+
+
+@pytest.mark.parametrize("tier", ["sift", "orb"])
+def test_maps_built_together_are_the_bytes_of_maps_built_alone(room, tmp_path, tier, monkeypatch):
+    """A tier's servers (strict and hloc profiles, points and line clouds) built by one ``build_maps`` share the
+    frames' features and each pair's scores, and every file of every map is the bytes of that map built alone."""
+    from synthleak.localize import mapping
+
+    base = LocalizeConfig(max_keypoints=512, pairs_per_image=3)
+    configs = {"strict": base, "hloc": dataclasses.replace(base, profile="hloc"),
+               "hloc+line-cloud": dataclasses.replace(base, profile="hloc", representation="line-cloud")}
+    for name, config in configs.items():
+        build_map(room, tier, tmp_path / "alone" / name, config, progress=False)
+    extracted: list[int] = []
+    from synthleak.localize.tiers import Tier
+
+    original = Tier.make_extractor
+    monkeypatch.setattr(Tier, "make_extractor", lambda self, *a: extracted.append(1) or original(self, *a))
+    mapping.build_maps(room, tier, [(tmp_path / "together" / name, config) for name, config in configs.items()],
+                       progress=False)
+    assert len(extracted) == 1  # one extraction for the three maps
+    for name in configs:
+        alone, together = tmp_path / "alone" / name, tmp_path / "together" / name
+        files = sorted(p.relative_to(alone) for p in alone.rglob("*") if p.is_file())
+        assert files == sorted(p.relative_to(together) for p in together.rglob("*") if p.is_file())
+        for rel in files:
+            if rel.suffix == ".npz":  # (a zip member records the time it was written)
+                import numpy as np
+
+                with np.load(alone / rel) as a, np.load(together / rel) as b:
+                    assert sorted(a.files) == sorted(b.files)
+                    assert all(a[k].dtype == b[k].dtype and a[k].tobytes() == b[k].tobytes() for k in a.files), rel
+            else:
+                assert (alone / rel).read_bytes() == (together / rel).read_bytes(), (name, rel)

@@ -21,9 +21,9 @@ def counted(monkeypatch: pytest.MonkeyPatch) -> Counter:
     queries localized (serial runs), by wrapping the functions a study calls (``localize_features`` for
     in-process queries: ``test_new_tier_builds_only_its_maps`` checks the counts are not zero by construction)."""
     import synthleak.localize.localizer as localizer
+    import synthleak.localize.mapping as mapping
     import synthleak.render.pipeline as pipeline
     import synthleak.study.features as features
-    import synthleak.study.maps as maps
 
     calls: Counter = Counter()
 
@@ -36,7 +36,7 @@ def counted(monkeypatch: pytest.MonkeyPatch) -> Counter:
     monkeypatch.setattr(pipeline, "get_renderer", counting("renderer", pipeline.get_renderer))
     monkeypatch.setattr(pipeline, "render_frame_task", counting("frame_tasks", pipeline.render_frame_task))
     monkeypatch.setattr(pipeline, "write_frame", counting("frames", pipeline.write_frame))
-    monkeypatch.setattr(maps, "build_map", counting("maps", maps.build_map))
+    monkeypatch.setattr(mapping, "_write_map", counting("maps", mapping._write_map))  # one per map built
     monkeypatch.setattr(localizer.Localizer, "localize", counting("queries", localizer.Localizer.localize))
     monkeypatch.setattr(localizer.Localizer, "localize_features",
                         counting("queries", localizer.Localizer.localize_features))
@@ -82,6 +82,25 @@ def test_threshold_change_reuses_every_cached_stage(ci_tiny_study: Path, tmp_pat
     rows = json.loads((study / "results" / "results.json").read_text())
     rows = rows["rows"] if isinstance(rows, dict) else rows
     assert {(r["delta_r_deg"], r["delta_t_m"]) for r in rows} == set(thresholds)
+
+
+def test_an_acceptance_change_redoes_only_the_queries(ci_tiny_study: Path, tmp_path: Path, counted: Counter
+                                                       ) -> None:
+    """A map's key holds what builds it: min inliers and the PnP threshold are the queries' settings."""
+    study = _copy(ci_tiny_study, tmp_path)
+    config = load_config("ci-tiny")
+    changed = dataclasses.replace(config, localize=dataclasses.replace(config.localize, min_inliers=40,
+                                                                       pnp_max_error_px=6.0))
+    before = _markers(study)
+    run_study(changed, study, progress=False)
+    assert counted["maps"] == counted["renderer"] == counted["frames"] == counted["features"] == 0
+    from synthleak.study import read_query_log
+
+    sent = sum(len(read_query_log(p)) for p in sorted(study.glob("queries/*/*/queries.jsonl")))
+    assert counted["queries"] == sent > 0
+    after = _markers(study)
+    assert all(after[k] == v for k, v in before.items() if k.startswith(("dataset", "maps", "features")))
+    assert any(after[k] != v for k, v in before.items() if k.startswith("queries"))
 
 
 def test_new_tier_builds_only_its_maps(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:

@@ -100,6 +100,33 @@ def test_a_study_runs_both_profiles_on_the_same_features(ci_tiny_study: Path, tm
     assert "`sift@hloc` (" in report  # the tier ordering lists the hloc server beside the strict one
 
 
+def test_servers_of_one_tier_answer_together_with_the_bytes_of_each_alone(ci_tiny_study: Path, tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch):
+    """In process, the strict and hloc servers of a tier answer each chunk of queries in one task, each pair of a
+    query and a map image scored once for both (:mod:`synthleak.localize.shared_matching`); their logs are the
+    bytes each server logs alone."""
+    from synthleak.study import queries as queries_stage
+
+    out = tmp_path / "study"
+    shutil.copytree(ci_tiny_study, out)
+    base = load_config("ci-tiny")
+    config = dataclasses.replace(base, localize=dataclasses.replace(base.localize, profile=["strict", "hloc"]))
+    run_study(config, out, progress=False)  # sift's logs are the fixture's; sift@hloc's are made alone
+    alone = {p.relative_to(out): p.read_bytes() for p in sorted(out.glob("queries/*/*/queries.jsonl"))}
+    assert len({p.parts[1] for p in alone}) == 2
+    together: list[bool] = []
+    real = queries_stage.localize_together
+
+    def recording(localizers, query, camera, shared=True):
+        together.append(shared and len(localizers) == 2)
+        return real(localizers, query, camera, shared)
+
+    monkeypatch.setattr(queries_stage, "localize_together", recording)
+    run_study(config, out, force=["queries"], progress=False)
+    assert together and all(together)  # every query answered by both servers, sharing the pairs' scores
+    assert {p.relative_to(out): p.read_bytes() for p in sorted(out.glob("queries/*/*/queries.jsonl"))} == alone
+
+
 def test_a_study_attacks_a_line_cloud_beside_the_point_map(ci_tiny_study: Path, tmp_path: Path):
     """``representation = ["points", "line-cloud"]``: a ``sift+line-cloud`` server per room whose map holds no
     ``points.npz``, its own query logs and results rows; the point server's stay the same bytes."""

@@ -74,6 +74,12 @@ def _retrieval_methods() -> Iterable[str]:
     return RETRIEVAL_METHODS
 
 
+def _pnp_solvers() -> Iterable[str]:
+    from synthleak.localize.pnp import PNP_SOLVERS
+
+    return PNP_SOLVERS
+
+
 def _layouts() -> Iterable[str]:
     from synthleak.scene.placement import LAYOUTS
 
@@ -275,13 +281,14 @@ class LocalizeConfig:
         "bow_depth": COUNT,
         "max_keypoints": COUNT,
         "pnp_max_error_px": at_least(0.0),
+        "pnp_solver": one_of(_pnp_solvers),
         "min_inliers": at_least(0),
         "pairs_per_image": COUNT,
         "two_view_min_inliers": at_least(0),
     }
     """A rule per field, checked when the config loads."""
     KEY_DEFAULTS: ClassVar[dict[str, Any]] = {"profile": "strict", "representation": "points", "servers": [],
-                                              "two_view_min_inliers": 0}
+                                              "two_view_min_inliers": 0, "pnp_solver": "poselib"}
     """Fields added after content keys were in use: :func:`config_to_dict` leaves them out at these values, so a
     config that does not change them keeps its keys (and its cached maps, queries and report)."""
 
@@ -316,6 +323,10 @@ class LocalizeConfig:
     pnp_max_error_px: float = 0.0
     """RANSAC PnP threshold in pixels; 0: the tier's own (12 px for every built-in tier, HLoc's default). A server
     profile that sets it (``hloc``: 12 px) keeps its own (:func:`synthleak.localize.tiers.profile_fixes`)."""
+    pnp_solver: str = "poselib"
+    """Whose RANSAC PnP a point server runs, under COLMAP's stopping rule and trial cap either way
+    (:mod:`synthleak.localize.pnp`): ``poselib`` (the default: half the cost per trial) or ``colmap``
+    (pycolmap's ``estimate_and_refine_absolute_pose``, HLoc's own call)."""
     min_inliers: int = 0
     """0: the tier's own default; a profile that sets it (``hloc``: 3) keeps its own."""
     pairs_per_image: int = 10

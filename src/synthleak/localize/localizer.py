@@ -9,14 +9,14 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import pycolmap
 
 from synthleak.config import LocalizeConfig
-from synthleak.core.dataset import camera_dist_coeffs, pycolmap_camera
+from synthleak.core.dataset import camera_dist_coeffs
 from synthleak.core.types import Camera
 from synthleak.localize.defense import DefenseDecision, DefensePolicy
 from synthleak.localize.features import Features
 from synthleak.localize.images import MAX_QUERY_PIXELS, InvalidImageError, decode_image, fit_to_pixels
+from synthleak.localize.pnp import estimate_pose
 from synthleak.localize.representations import map_representation, read_represented_map
 from synthleak.localize.retrieval import RETRIEVAL_METHODS, BowIndex
 from synthleak.localize.store import MapData, MapError
@@ -92,9 +92,11 @@ class Localizer:
         self.two_view_min_inliers = int(config.two_view_min_inliers)
         # Only keypoints with a 3D point take part in 2D-3D matching.
         self._db: list[tuple[Features, np.ndarray]] = []
+        self._mapped: list[np.ndarray] = []
         for f, idx in zip(data.features, data.point_index, strict=True):
             keep = np.nonzero(idx >= 0)[0]
             self._db.append((f.subset(keep), idx[keep]))
+            self._mapped.append(keep)
         self._bow: BowIndex | None = None
         self.max_query_pixels = MAX_QUERY_PIXELS
 
@@ -159,10 +161,13 @@ class Localizer:
         return result
 
     def localize_features(self, query: Features, camera: Camera | None = None,
-                          candidates: np.ndarray | None = None) -> LocalizationResult:
+                          candidates: np.ndarray | None = None, matches: list[np.ndarray] | None = None,
+                          ) -> LocalizationResult:
         """Pose from the query's already extracted features (this map's tier and ``max_keypoints``): the same
         result as :meth:`localize` on the image they came from, without extracting them again.
-        ``candidates`` (map image indices) replaces the retrieval (benchmarks compare retrievals with it)."""
+        ``candidates`` (map image indices) replaces the retrieval (benchmarks compare retrievals with it);
+        ``matches``, the candidates' :meth:`pair_matches` made before (shared with another server of the tier, or
+        cached), replaces the matching: the result is then the pose estimation's alone."""
         camera = camera or self.camera
         if query.image_size == (0, 0):
             query = replace(query, image_size=(camera.width, camera.height))
@@ -173,7 +178,9 @@ class Localizer:
         if candidates is None:
             candidates = self.candidates(query)
         t_retrieval = time.perf_counter() - t1
-        corr, num_matches = self.verified_correspondences(query, candidates, camera)
+        if matches is None:
+            matches = self.pair_matches(query, candidates)
+        corr, num_matches = self._verified(query, candidates, matches, camera)
         t2 = time.perf_counter()
         result = self.pose_from_matches(query, corr, camera, num_matches)
         t3 = time.perf_counter()
@@ -187,6 +194,11 @@ class Localizer:
         map image's keypoints that have a 3D point or line)."""
         return [self.matcher(query, self._db[i][0]) for i in candidates]
 
+    def mapped_keypoints(self, image: int) -> np.ndarray:
+        """Indices, ascending, of map image ``image``'s keypoints that have a 3D point or line: the columns
+        :meth:`pair_matches` indexes."""
+        return self._mapped[image]
+
     def correspondences(self, query: Features, candidates: np.ndarray) -> np.ndarray:
         """(M, 2) unique ``(query keypoint, map point)`` matches against the ``candidates`` map images, sorted."""
         return self._point_matches(candidates, self.pair_matches(query, candidates))
@@ -196,7 +208,10 @@ class Localizer:
         """The matches :meth:`correspondences` gives that pass two-view verification (``[localize]
         two_view_min_inliers``, :mod:`synthleak.localize.two_view`; all of them when it is 0), and how many
         matches there were before it. ``camera``: the query's (default: the map's)."""
-        matches = self.pair_matches(query, candidates)
+        return self._verified(query, candidates, self.pair_matches(query, candidates), camera)
+
+    def _verified(self, query: Features, candidates: np.ndarray, matches: list[np.ndarray], camera: Camera | None
+                  ) -> tuple[np.ndarray, int]:
         every = self._point_matches(candidates, matches)
         if not self.two_view_min_inliers:
             return every, len(every)
@@ -233,10 +248,6 @@ class Localizer:
         num_matches = len(corr) if num_matches is None else int(num_matches)
         if len(corr) < max(self.min_inliers, 3):  # P3P: 3 matches (COLMAP, HLoc)
             return LocalizationResult(False, num_matches=num_matches)
-        cam = pycolmap_camera(camera)  # PINHOLE, or OPENCV with the query's lens distortion
-        options = pycolmap.AbsolutePoseEstimationOptions()
-        options.ransac.max_error = float(self.max_error_px)
-        options.ransac.random_seed = RANSAC_SEED
         lines = getattr(self.data, "lines", None)
         min_inliers = self.min_inliers
         if lines is not None:  # a line-cloud map (Speciale et al. 2019): the same result, from 2D-3D-line matches
@@ -255,19 +266,23 @@ class Localizer:
             est = estimate_pose_from_lines(
                 keypoints, lines.directions[corr[:, 1]], lines.anchors[corr[:, 1]], pinhole,
                 LineRansacOptions(max_error_px=threshold, min_inliers=min_inliers), seed=RANSAC_SEED)
-        else:
-            est = pycolmap.estimate_and_refine_absolute_pose(
-                query.keypoints[corr[:, 0]], self.data.xyz[corr[:, 1]], cam, options
-            )
-        if est is None:
-            return LocalizationResult(False, num_matches=num_matches)
-        inliers = corr[np.asarray(est["inlier_mask"], dtype=bool)]
+            if est is None:
+                return LocalizationResult(False, num_matches=num_matches)
+            cam_from_world, inlier_mask = est["cam_from_world"].matrix(), np.asarray(est["inlier_mask"], dtype=bool)
+        else:  # undistorted keypoints, the pinhole camera (:mod:`synthleak.localize.pnp`)
+            keypoints, pinhole = undistorted_keypoints(query.keypoints[corr[:, 0]], camera)
+            solved = estimate_pose(keypoints, self.data.xyz[corr[:, 1]], pinhole, float(self.max_error_px),
+                                   RANSAC_SEED, self.config.pnp_solver)
+            if solved is None:
+                return LocalizationResult(False, num_matches=num_matches)
+            cam_from_world, inlier_mask = solved.cam_from_world, solved.inlier_mask
+        inliers = corr[inlier_mask]
         _, first = np.unique(inliers[:, 0], return_index=True)  # one vote per query keypoint
         counts = Counter(int(self.data.instance[p]) for p in inliers[first, 1])
         counts_sorted = {k: counts[k] for k in sorted(counts)}
         num_inliers = len(first)
         pose = np.eye(4)
-        pose[:3] = est["cam_from_world"].matrix()
+        pose[:3] = cam_from_world
         success = num_inliers >= min_inliers
         decision = self.defense.apply(counts_sorted) if success else None
         withheld = None

@@ -25,7 +25,7 @@ from synthleak.localize.pairs import pairs_from_poses
 from synthleak.localize.representations import DEFAULT_REPRESENTATION
 from synthleak.localize.retrieval import BowIndex, BowParams
 from synthleak.localize.store import FORMAT_VERSION, camera_to_json
-from synthleak.localize.tiers import DEFAULT_PROFILE, profile_tier
+from synthleak.localize.tiers import DEFAULT_PROFILE, profile_tier, shared_matcher
 from synthleak.localize.triangulation import (
     build_tracks,
     epipolar_distance,
@@ -97,46 +97,103 @@ def build_map(
     is matched with the tier as ``config.profile`` defines it; a profile other than ``strict`` is recorded in
     ``map.json``'s settings (``profile``, ``tier_definition``), so a map is rebuilt when it changes.
     """
-    config = config or LocalizeConfig()
-    for key in ("profile", "representation"):
-        if isinstance(getattr(config, key), list):
-            raise ValueError(f"build_map: one {key} per map, got [localize] {key} = {getattr(config, key)!r}")
-    sequence_dir, out_dir = Path(sequence_dir), Path(out_dir)
-    tier_spec = profile_tier(tier, config.profile)
+    return build_maps(sequence_dir, tier, [(Path(out_dir), config or LocalizeConfig())], progress, weights_dir)[0]
+
+
+def build_maps(
+    sequence_dir: Path,
+    tier: str,
+    maps: list[tuple[Path, LocalizeConfig]],
+    progress: bool = True,
+    weights_dir: Path | None = None,
+) -> list[Path]:
+    """:func:`build_map` of each ``(out_dir, config)`` of one sequence and tier (the tier's servers: one per server
+    profile and map representation), each map the same bytes as built alone, the work they share done once: the
+    map frames' features (a profile sets only matching and PnP), each pair's descriptor scores (every profile's
+    matching rule filters the same scores: :func:`~synthleak.localize.tiers.shared_matcher`), and the tracks and
+    points of maps whose matching is the same (representations of one profile). Returns the out dirs."""
+    sequence_dir = Path(sequence_dir)
+    for _, config in maps:
+        for key in ("profile", "representation"):
+            if isinstance(getattr(config, key), list):
+                raise ValueError(f"build_map: one {key} per map, got [localize] {key} = {getattr(config, key)!r}")
     seq = load_sequence(sequence_dir)
     if len(seq.map_frames) < 2:
         raise DatasetError(f"{sequence_dir / 'split.json'}: field 'map' needs at least 2 frames")
     digest = inputs_hash(seq)
-    weights = tier_spec.weights_record(weights_dir)
-    settings = _map_settings(tier, config, weights)
-    meta_path = out_dir / "map.json"
-    if meta_path.is_file():
-        old = json.loads(meta_path.read_text())
-        if old.get("inputs_sha256") == digest and old.get("settings") == settings:
-            retrieval = _retrieval_meta(config)
-            if old.get("retrieval") != retrieval:  # query-time settings: recorded, no rebuild
-                atomic_write_text(meta_path, json.dumps(old | {"retrieval": retrieval}, indent=1))
-            return out_dir
+    groups: dict[tuple[int, int], list[_MapJob]] = {}
+    for out_dir, config in maps:
+        job = _MapJob(Path(out_dir), config, profile_tier(tier, config.profile), weights_dir)
+        if not job.reuse(digest):
+            groups.setdefault((job.tier.keypoint_budget(config.max_keypoints), config.pairs_per_image), []).append(job)
+    for jobs in groups.values():  # (one group in a study: its servers share the features and the pairs)
+        _build_group(seq, sequence_dir, tier, digest, jobs, progress, weights_dir)
+    return [Path(out_dir) for out_dir, _ in maps]
 
-    extractor = tier_spec.make_extractor(config.max_keypoints, weights_dir)
-    matcher = tier_spec.make_matcher(weights_dir)
+
+class _MapJob:
+    """One map to build: where, with which config, the tier as its profile defines it, its recorded settings."""
+
+    def __init__(self, out_dir: Path, config: LocalizeConfig, tier_spec, weights_dir: Path | None) -> None:
+        self.out_dir, self.config, self.tier = out_dir, config, tier_spec
+        self.weights = tier_spec.weights_record(weights_dir)
+        self.settings = _map_settings(tier_spec.name, config, self.weights)
+
+    def reuse(self, digest: str) -> bool:
+        """True when ``map.json`` is of these inputs and settings (its query-time settings are updated)."""
+        meta_path = self.out_dir / "map.json"
+        if not meta_path.is_file():
+            return False
+        old = json.loads(meta_path.read_text())
+        if old.get("inputs_sha256") != digest or old.get("settings") != self.settings:
+            return False
+        retrieval = _retrieval_meta(self.config)
+        if old.get("retrieval") != retrieval:  # query-time settings: recorded, no rebuild
+            atomic_write_text(meta_path, json.dumps(old | {"retrieval": retrieval}, indent=1))
+        return True
+
+
+def _build_group(seq: Sequence, sequence_dir: Path, tier: str, digest: str, jobs: list[_MapJob], progress: bool,
+                 weights_dir: Path | None) -> None:
+    """The maps of ``jobs`` (one keypoint budget and pair count): features and pair scores once for all."""
+    config = jobs[0].config
+    extractor = jobs[0].tier.make_extractor(config.max_keypoints, weights_dir)
+    rules = list(dict.fromkeys(job.tier for job in jobs))  # distinct matching definitions
+    matcher = shared_matcher(rules, weights_dir)
     names = list(seq.map_frames)
     poses = [seq.pose(n) for n in names]  # the map's world is the sequence's frame (cam_from_world of a scene)
     features: list[Features] = [extractor(seq.rgb(n)) for n in progress_bar(names, "features", progress)]
 
     k = seq.camera.K
     ideal = ideal_keypoints(seq, names, features)  # as the pinhole seq.camera sees them: lens undone, per frame
-    matches: dict[tuple[int, int], np.ndarray] = {}
+    matches: list[dict[tuple[int, int], np.ndarray]] = [{} for _ in rules]
     pairs = pairs_from_poses(poses, config.pairs_per_image)
     for i, j in progress_bar(pairs, "matching", progress):
-        m = matcher(features[i], features[j])
-        if len(m):
-            f = fundamental_from_poses(k, poses[i], poses[j])
-            err = epipolar_distance(f, ideal[i][m[:, 0]], ideal[j][m[:, 1]])
-            m = m[err < EPIPOLAR_MAX_PX]
-        if len(m):
-            matches[(i, j)] = m
+        f = None
+        for found, m in zip(matches, matcher(features[i], features[j]), strict=True):
+            if len(m):
+                f = fundamental_from_poses(k, poses[i], poses[j]) if f is None else f
+                err = epipolar_distance(f, ideal[i][m[:, 0]], ideal[j][m[:, 1]])
+                m = m[err < EPIPOLAR_MAX_PX]
+            if len(m):
+                found[(i, j)] = m
 
+    masks = [seq.instance(n) for n in names]
+    for rule, rule_matches in zip(rules, matches, strict=True):
+        points, instance, point_index = _triangulate(seq, names, poses, features, ideal, masks, rule_matches,
+                                                     progress)
+        for job in jobs:
+            if job.tier == rule:
+                _write_map(job, seq, sequence_dir, tier, digest, names, poses, features, masks, points, instance,
+                           point_index, len(pairs))
+
+
+def _triangulate(seq: Sequence, names: list[str], poses: list[np.ndarray], features: list[Features],
+                 ideal: list[np.ndarray], masks: list[np.ndarray], matches: dict[tuple[int, int], np.ndarray],
+                 progress: bool) -> tuple[list, np.ndarray, list[np.ndarray]]:
+    """Tracks of the pair ``matches``, their points (DLT with the GT poses), each point's GT instance and each
+    image's keypoint -> point index."""
+    k = seq.camera.K
     tracks = build_tracks([len(f) for f in features], matches) if matches else []
     cams_from_world = np.stack(poses)
     centres = np.stack([np.linalg.inv(p)[:3, 3] for p in poses])
@@ -144,14 +201,19 @@ def build_map(
     points = [p for t in progress_bar(tracks, "triangulation", progress)
               if (p := triangulate_track(t, ideal, cams_from_world, k, centres, TRIANGULATION_MAX_ERROR_PX,
                                          TRIANGULATION_MIN_ANGLE_DEG)) is not None]
-
-    masks = [seq.instance(n) for n in names]
     instance = np.array([_vote(p.track, keypoints, masks) for p in points], dtype=np.int64)
     point_index = [np.full(len(f), -1, np.int64) for f in features]
     for pid, p in enumerate(points):
         for img, kp in p.track:
             point_index[img][kp] = pid
+    return points, instance, point_index
 
+
+def _write_map(job: _MapJob, seq: Sequence, sequence_dir: Path, tier: str, digest: str, names: list[str],
+               poses: list[np.ndarray], features: list[Features], masks: list[np.ndarray], points: list,
+               instance: np.ndarray, point_index: list[np.ndarray], num_pairs: int) -> None:
+    """Write one map's files, ``map.json`` last (it marks a complete map)."""
+    out_dir, config = job.out_dir, job.config
     if out_dir.exists():
         for name in ("sfm", "map.json", IMAGE_INSTANCES_FILE, "points.npz", "points_instance.json", "lines.npz",
                      "paired_lines.npz"):
@@ -192,18 +254,17 @@ def build_map(
         "tier": tier,
         "sequence": str(sequence_dir),
         "inputs_sha256": digest,
-        "settings": settings,
+        "settings": job.settings,
         "retrieval": _retrieval_meta(config),
-        "keypoint_budget": tier_spec.keypoint_budget(config.max_keypoints),
-        "weights": weights,
+        "keypoint_budget": job.tier.keypoint_budget(config.max_keypoints),
+        "weights": job.weights,
         "camera": camera_to_json(seq.camera),
         "num_images": len(names),
-        "num_pairs": len(pairs),
+        "num_pairs": num_pairs,
         "num_points": len(points),
         "mean_track_length": float(np.mean([len(p.track) for p in points])) if points else 0.0,
     }
-    meta_path.write_text(json.dumps(meta, indent=1))  # written last: marks a complete map
-    return out_dir
+    (out_dir / "map.json").write_text(json.dumps(meta, indent=1))  # written last: marks a complete map
 
 
 def ideal_keypoints(seq: Sequence, names: list[str], features: list[Features]) -> list[np.ndarray]:

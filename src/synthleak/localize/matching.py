@@ -6,6 +6,7 @@ import contextlib
 import os
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -51,13 +52,41 @@ def match_features(a: Features, b: Features, ratio: float, mutual: bool, *, both
     """(M, 2) int indices ``(i in a, j in b)``; ratio <= 0 or >= 1 disables the ratio test; ``both_ways``: a
     mutual match also passes the ratio test from ``b``'s side (HLoc's ``NN-ratio``). Float descriptors are
     compared as unit vectors (:func:`unit_scores`), binary ones by Hamming distance."""
+    return pair_scores(a, b).matches(ratio, mutual, both_ways=both_ways)
+
+
+@dataclass
+class PairScores:
+    """The descriptor scores of one image pair, computed once: every matching rule (ratio, mutual check) that
+    servers of one tier apply is a cheap filter of the same matrix (:meth:`matches`)."""
+
+    scores: np.ndarray | None
+    """(Na, Nb) scores that rank as distances do, or None when either side has no features."""
+    to_distance: Callable[[np.ndarray], np.ndarray] | None = None
+    """Maps best and second scores to the distances the ratio test compares."""
+    squared: bool = False
+    """The distances are squared (the ratio test compares them with ``ratio**2``)."""
+
+    def matches(self, ratio: float, mutual: bool, *, both_ways: bool = False) -> np.ndarray:
+        """:func:`match_features`'s matches under this rule (the scores are left as they were)."""
+        if self.scores is None:
+            return np.zeros((0, 2), np.int64)
+        return nearest_neighbours(self.scores, ratio * ratio if self.squared else ratio, mutual,
+                                  to_distance=self.to_distance, both_ways=both_ways)
+
+
+def pair_scores(a: Features, b: Features) -> PairScores:
+    """The scores :func:`match_features` filters: unit-vector scores of float descriptors (Lowe's test on
+    squared distances: ``d0 < r d1  <=>  d0^2 < r^2 d1^2``, no square roots), the +-1 product of binary ones
+    (Lowe's test on the Hamming distances themselves, in float32)."""
     if len(a) == 0 or len(b) == 0:
-        return np.zeros((0, 2), np.int64)
+        return PairScores(None)
     if a.binary:
-        return _match_binary(a.descriptors, b.descriptors, ratio, mutual, both_ways=both_ways)
-    # Lowe's test on squared distances: d0 < r d1  <=>  d0^2 < r^2 d1^2 (no square roots)
-    return nearest_neighbours(unit_scores(a.descriptors, b.descriptors), ratio * ratio, mutual,
-                              to_distance=lambda s: 2.0 + 2.0 * s.astype(np.float64), both_ways=both_ways)
+        packed_bytes = np.asarray(a.descriptors).shape[1]
+        return PairScores(negated_dot(a.descriptors, b.descriptors),
+                          lambda score: _hamming_from_score(score, packed_bytes))
+    return PairScores(unit_scores(a.descriptors, b.descriptors), lambda s: 2.0 + 2.0 * s.astype(np.float64),
+                      squared=True)
 
 
 def nearest_neighbours(dist: np.ndarray, ratio: float, mutual: bool,

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from synthleak.localize.features import Extractor, Features, OpenCVExtractor, SiftExtractor
-from synthleak.localize.matching import match_features
+from synthleak.localize.matching import match_features, pair_scores
 from synthleak.plugins import resolve
 
 Matcher = Callable[[Features, Features], np.ndarray]
@@ -125,6 +125,50 @@ def nn_matcher(tier: Tier, weights_dir: Path | None = None) -> Matcher:
     """Nearest-neighbour matching with the tier's ratio test and mutual check (the default matcher factory)."""
     ratio, mutual, both_ways = tier.ratio, tier.mutual, tier.ratio_both_ways
     return lambda a, b: match_features(a, b, ratio, mutual, both_ways=both_ways)
+
+
+SharedMatcher = Callable[[Features, Features], list[np.ndarray]]
+"""``matcher(a, b) -> [matches of each tier]``: one pair matched under several tiers' rules at once."""
+
+
+def uses_nn_matcher(tier: Tier) -> bool:
+    """True when ``tier`` matches with :func:`nn_matcher` (its rule a filter of one pair's scores)."""
+    return _registered_matcher(tier.name) is nn_matcher
+
+
+def _registered_matcher(name: str) -> MatcherFactory | str:
+    try:
+        return _FACTORIES[name][1]
+    except KeyError:
+        raise ValueError(f"tier {name!r}: no extractor registered (known: {', '.join(_FACTORIES)})") from None
+
+
+def shared_matcher(tiers: list[Tier], weights_dir: Path | None = None) -> SharedMatcher:
+    """One pair's matches under each of ``tiers`` (one tier under several server profiles), with the work they
+    share done once: nearest-neighbour tiers (:func:`nn_matcher`) score the pair once and each applies its own
+    ratio and mutual rule to the same scores (the same matches as each tier's own matcher, bit for bit); other
+    matchers run once per distinct definition."""
+    if all(uses_nn_matcher(t) for t in tiers):
+        rules = [(t.ratio, t.mutual, t.ratio_both_ways) for t in tiers]
+
+        def match_all(a: Features, b: Features) -> list[np.ndarray]:
+            scores = pair_scores(a, b)
+            return [scores.matches(ratio, mutual, both_ways=both_ways) for ratio, mutual, both_ways in rules]
+
+        return match_all
+    distinct: dict[Tier, Matcher] = {}
+    for t in tiers:
+        distinct.setdefault(t, t.make_matcher(weights_dir))
+    matchers = [distinct[t] for t in tiers]
+
+    def match_each(a: Features, b: Features) -> list[np.ndarray]:
+        done: dict[int, np.ndarray] = {}
+        for m in matchers:
+            if id(m) not in done:
+                done[id(m)] = m(a, b)
+        return [done[id(m)] for m in matchers]
+
+    return match_each
 
 
 def register_tier(

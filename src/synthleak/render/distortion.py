@@ -19,6 +19,7 @@ borrowed from a neighbouring render pixel.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 
@@ -187,12 +188,18 @@ def _pixel_grid(camera: Camera, border_only: bool = False) -> tuple[np.ndarray, 
     return u, v
 
 
+@lru_cache(maxsize=4)
 def camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """Undistorted normalised (x, y) of every pixel centre of ``camera`` (H, W): its rays are (x, y, 1)."""
+    """Undistorted normalised (x, y) of every pixel centre of ``camera`` (H, W), read-only: its rays are
+    (x, y, 1). The last few cameras' grids are kept, so a photo's resampling and its ground truth's ray cast
+    undistort the frame once."""
     u, v = _pixel_grid(camera)
     x, y = (u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy
     dist = camera_dist_coeffs(camera)
-    return (x, y) if dist is None else undistort_normalized(x, y, dist)
+    if dist is not None:
+        x, y = undistort_normalized(x, y, dist)
+    x.flags.writeable = y.flags.writeable = False
+    return x, y
 
 
 def sample_positions(output: Camera, render: Camera) -> tuple[np.ndarray, np.ndarray]:
@@ -204,9 +211,30 @@ def sample_positions(output: Camera, render: Camera) -> tuple[np.ndarray, np.nda
 
 def distorted_camera(render: Camera, dist: np.ndarray, where: str) -> OpenCVCamera:
     """The output camera of a distorted capture of the pinhole ``render`` (see the module docstring): same size
-    and principal point, focal length ``s * f`` with the smallest ``s`` keeping every sample inside the render."""
+    and principal point, focal length ``s * f`` with the smallest ``s`` keeping every sample inside the render.
+    Computed once per (render camera, coefficients) in a process (:func:`focal_scale`)."""
     k1, k2, p1, p2, k3 = (float(c) for c in dist)
     check_no_fold(k1, k2, k3, render, where)
+    s = focal_scale(render, (k1, k2, p1, p2, k3))
+    if s is None:
+        raise ConfigError(f"{where}: no focal length keeps the distorted frame inside the render")
+    return OpenCVCamera(render.width, render.height, render.fx * s, render.fy * s, render.cx, render.cy,
+                        k1, k2, p1, p2, k3)
+
+
+BISECTION_STEPS = 60
+"""Halvings of the focal scale's bracket [0.5, 4]: the scale is the bracket's top rounded up to 1e-6."""
+
+
+@lru_cache(maxsize=4096)
+def focal_scale(render: Camera, coeffs: tuple[float, float, float, float, float]) -> float | None:
+    """The smallest focal scale (rounded up to 1e-6) for which every border pixel of a ``coeffs`` capture of
+    ``render`` samples inside the render, or None when no scale up to 4 does.
+
+    It is the top of :data:`BISECTION_STEPS` halvings of [0.5, 4], rounded up to 1e-6; the halving stops early
+    once every value the bracket's top can still take rounds up to the same 1e-6 step (rounding is monotonic),
+    so the scale is the same bits as after every halving, for a third of the undistortions."""
+    dist = np.array(coeffs, dtype=np.float64)
     u, v = _pixel_grid(render, border_only=True)
     lo_u, hi_u, lo_v, hi_v = 0.5, render.width - 0.5, 0.5, render.height - 0.5
 
@@ -218,15 +246,19 @@ def distorted_camera(render: Camera, dist: np.ndarray, where: str) -> OpenCVCame
         ur, vr = render.fx * x + render.cx, render.fy * y + render.cy
         return bool(np.all((ur >= lo_u) & (ur <= hi_u) & (vr >= lo_v) & (vr <= hi_v)))
 
+    def rounded(s: float) -> float:
+        return math.ceil(s * 1e6) / 1e6
+
     lo, hi = 0.5, 4.0
     if not inside(hi):
-        raise ConfigError(f"{where}: no focal length keeps the distorted frame inside the render")
-    for _ in range(60):
+        return None
+    for _ in range(BISECTION_STEPS):
+        # every later top lies in (lo, hi]: the smallest is above lo, so at least its successor
+        if rounded(math.nextafter(lo, math.inf)) == rounded(hi):
+            break
         mid = 0.5 * (lo + hi)
         lo, hi = (lo, mid) if inside(mid) else (mid, hi)
-    s = math.ceil(hi * 1e6) / 1e6
-    return OpenCVCamera(render.width, render.height, render.fx * s, render.fy * s, render.cx, render.cy,
-                        k1, k2, p1, p2, k3)
+    return rounded(hi)
 
 
 def raycast_camera(gt, camera: Camera, cam_from_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -377,6 +377,11 @@ def plan_sequence(job: SequenceJob, config: StudyConfig, scene: RenderScene | No
             for idx in chunks(todo, FRAMES_PER_TASK)]
 
 
+def plan_sequence_task(item: tuple[SequenceJob, StudyConfig]) -> list[FrameTask]:
+    """:func:`plan_sequence` of one sequence (a worker task: sequences are planned in parallel)."""
+    return plan_sequence(*item)
+
+
 def render_sequences(
     jobs: list[SequenceJob], config: StudyConfig, executor: Executor | None = None, progress: bool = True
 ) -> list[Path]:
@@ -385,9 +390,9 @@ def render_sequences(
     Frames of all sequences are spread over ``executor``'s workers in chunks; the files are the same
     bytes whatever the executor and its number of workers."""
     executor = executor or LocalExecutor(1)
-    tasks: list[FrameTask] = []
-    for job in jobs:
-        tasks += plan_sequence(job, config)
+    # planned in the workers (each frame's lens camera is a bisection: serial planning kept one core idle)
+    plans = executor.map(plan_sequence_task, [(job, config) for job in jobs], "plan sequences", progress)
+    tasks: list[FrameTask] = [task for plan in plans for task in plan]
     executor.map(render_frame_task, tasks, "render frames", progress)
     _WORKER_RENDERER.clear()  # the serial path renders in this process: free the last scene
     for job in jobs:  # the BOP scene folder's rgb/ (hard links: cheap, so also without the extras)

@@ -59,6 +59,26 @@ EGL teardown calls ``eglTerminate`` on the process-wide display, so deleting one
 another is alive breaks the other (EGL_BAD_DISPLAY)."""
 
 
+_MESHES: dict[int, tuple[RenderMesh, Any]] = {}
+"""The pyrender meshes of the last scene prepared in this process, by ``id`` of their :class:`RenderMesh` (kept
+alive here, so an id is not reused): the lighting conditions of one stage (:mod:`synthleak.render.light_conditions`
+shares their meshes) get the same pyrender meshes, so switching between them draws what the GL context holds
+instead of uploading every mesh and texture again."""
+
+
+def _shared_mesh(pr: Any, mesh: RenderMesh) -> Any:
+    """The pyrender mesh of ``mesh``: the one made for this very object by an earlier :meth:`prepare`, else new."""
+    cached = _MESHES.get(id(mesh))
+    if cached is not None and cached[0] is mesh:
+        return cached[1]
+    primitive = _flat_primitive(pr, mesh)
+    pmesh = pr.Mesh([primitive], name=mesh.name)
+    # pyrender 0.1.45's Mesh.bounds uses np.infty (gone in numpy 2): preset the cached bounds.
+    pmesh._bounds = np.asarray(primitive.bounds, dtype=np.float64).copy()
+    _MESHES[id(mesh)] = (mesh, pmesh)
+    return pmesh
+
+
 class PyrenderUnavailable(ImportError):
     """pyrender or a headless OpenGL platform is missing; the message says how to install it."""
 
@@ -314,14 +334,12 @@ class PyrenderRenderer:
         pscene = _ordered_lights_scene(pr)(bg_color=(bg, bg, bg, 1.0), ambient_light=(ambient, ambient, ambient))
         seg_map: dict[Any, np.ndarray] = {}
         order = []
+        if not any(id(m) in _MESHES and _MESHES[id(m)][0] is m for m in scene.meshes):
+            _MESHES.clear()  # another stage: the last one's meshes are not needed again
         for mesh in scene.meshes:
             if not 0 <= int(mesh.instance_id) <= 0xFFFF:
                 raise ValueError(f"mesh {mesh.name!r}: instance_id {mesh.instance_id} does not fit uint16")
-            primitive = _flat_primitive(pr, mesh)
-            pmesh = pr.Mesh([primitive], name=mesh.name)
-            # pyrender 0.1.45's Mesh.bounds uses np.infty (gone in numpy 2): preset the cached bounds.
-            pmesh._bounds = np.asarray(primitive.bounds, dtype=np.float64).copy()
-            node = pscene.add(pmesh)
+            node = pscene.add(_shared_mesh(pr, mesh))
             order.append(node)
             seg_map[node] = encode_ids(np.array(mesh.instance_id))
         for light in (*scene.lights, *emissive_lights(scene)):  # emissive meshes light through stand-ins

@@ -15,6 +15,7 @@ from synthleak.executors import chunks
 from synthleak.localize.client import HttpLocalizer
 from synthleak.localize.feature_files import load_features
 from synthleak.localize.localizer import Localizer
+from synthleak.localize.shared_matching import can_share, localize_together
 from synthleak.study.context import Stage, StudyContext, Unit
 from synthleak.study.plan import query_plans
 from synthleak.study.workers import QUERIES_PER_TASK, clear_worker_cache, worker_cached
@@ -31,34 +32,49 @@ def make_localizer(map_dir: Path, config: StudyConfig | Any, server_url: str | N
 
 
 @dataclass
-class QueryTask:
-    """Consecutive planned queries of one (server, room) pair, for one worker (``tier``: the server's name,
-    :mod:`synthleak.localize.servers`)."""
+class QueryTarget:
+    """One server of a :class:`QueryTask`: where its map is, how it answers, where its lines go."""
 
     map_dir: Path
     localize: Any
     server_url: str | None
     """This (server, room) pair's service URL (:meth:`StudyContext.server_urls`), or None: in process."""
     tier: str
+    """The server's name (:mod:`synthleak.localize.servers`)."""
+    part_file: Path
+    """Where the task writes this server's lines when it is done (a stopped stage keeps them and resumes after
+    them)."""
+
+
+@dataclass
+class QueryTask:
+    """Consecutive planned queries of one room, for one worker, sent to one server, or in process to several
+    servers of one tier (each pair of a query and a map image is then scored once for all of them:
+    :mod:`synthleak.localize.shared_matching`)."""
+
+    targets: list[QueryTarget]
     room: str
     items: list[dict[str, Any]]
     """Plan entries plus ``_camera`` (the intrinsics) and ``_image`` (the image's path; sent to a server) or
     ``_features`` (its cached features; matched in process)."""
-    part_file: Path
-    """Where the task writes its lines when it is done (a stopped stage keeps them and resumes after them)."""
     defense: Any = None
     """The enabled :class:`~synthleak.localize.defense.DefensePolicy` the in-process server applies, or None."""
 
 
+def _load_localizers(task: QueryTask) -> tuple[list[Any], bool]:
+    localizers = [make_localizer(t.map_dir, t.localize, t.server_url, task.defense) for t in task.targets]
+    in_process = all(t.server_url is None for t in task.targets)
+    return localizers, in_process and can_share(localizers)
+
+
 def query_task(task: QueryTask) -> int:
-    """Localize each image of the task and write one JSON line per query, in the task's order, to its
-    ``part_file`` (a worker task; the lines stay on disk rather than travel back to the driver). Returns
-    the number of queries."""
-    key = repr((str(task.map_dir), done_key(task.map_dir), task.server_url, config_to_dict(task.localize),
-                task.defense))
-    localizer = worker_cached(key, lambda: make_localizer(task.map_dir, task.localize, task.server_url,
-                                                          task.defense))
-    lines = []
+    """Localize each image of the task with each of its servers and write one JSON line per query and server,
+    in the task's order, to the server's ``part_file`` (a worker task; the lines stay on disk rather than
+    travel back to the driver). Returns the number of queries answered."""
+    key = repr([(str(t.map_dir), done_key(t.map_dir), t.server_url, config_to_dict(t.localize))
+                for t in task.targets] + [task.defense])
+    localizers, shared = worker_cached(key, lambda: _load_localizers(task))
+    lines: list[list[str]] = [[] for _ in task.targets]
     for entry in task.items:
         camera = entry["_camera"]
         if "_features" in entry:
@@ -66,14 +82,17 @@ def query_task(task: QueryTask) -> int:
             if size != (camera.width, camera.height):
                 raise ValueError(f"{entry['_features']}: features of a {size[0]}x{size[1]} image but the camera "
                                  f"is {camera.width}x{camera.height}")
-            result = localizer.localize_features(features, camera)
+            results = localize_together(localizers, features, camera, shared)
         else:
-            result = localizer.localize(Path(entry["_image"]).read_bytes(), camera)
-        remote = bool(task.server_url) and not getattr(result, "labelled", False)  # labelled: as in process
-        lines.append(query_line(entry, task.tier, task.room, result, task.defense, remote=remote,
-                                served=bool(task.server_url)))
-    atomic_write_text(task.part_file, "".join(line + "\n" for line in lines))
-    return len(lines)
+            image = Path(entry["_image"]).read_bytes()
+            results = [localizer.localize(image, camera) for localizer in localizers]
+        for target, result, out in zip(task.targets, results, lines, strict=True):
+            remote = bool(target.server_url) and not getattr(result, "labelled", False)  # labelled: as in process
+            out.append(query_line(entry, target.tier, task.room, result, task.defense, remote=remote,
+                                  served=bool(target.server_url)))
+    for target, out in zip(task.targets, lines, strict=True):
+        atomic_write_text(target.part_file, "".join(line + "\n" for line in out))
+    return len(task.items) * len(task.targets)
 
 
 def parts_dir(unit: Unit) -> Path:
@@ -104,15 +123,24 @@ class QueriesStage(Stage):
         policy = ctx.defense
         return [Unit(ctx.paths.query_dir(tier, room),
                      cache_key("queries", done_key(map_dir), done_key(ctx.paths.dataset), ctx.genuine,
-                               ctx.config.attack.queries_per_object, ctx.server_url,
+                               ctx.config.attack.queries_per_object, ctx.server_url, self.settings(ctx, tier),
                                *([repr(policy)] if policy else [])), (tier, room))
                 for (tier, room), map_dir in ctx.servers().items()]
 
+    @staticmethod
+    def settings(ctx: StudyContext, server: str) -> dict[str, Any]:
+        """The ``[localize]`` settings server ``server`` answers with (its query-time settings among them: the
+        map's key holds only what builds the map, :data:`synthleak.study.maps.MAP_SETTINGS`)."""
+        localize = config_to_dict(ctx.server(server).localize(ctx.config.localize))
+        return {k: v for k, v in localize.items() if k != "tiers"}
+
     def make(self, ctx: StudyContext, todo: list[Unit]) -> dict[tuple[str, str], Path]:
-        """Returns every server's log (made now or before)."""
+        """Returns every server's log (made now or before). In process, the servers of one tier and room share
+        their tasks (one task answers a chunk of queries for each of them)."""
         plans = query_plans(ctx) if todo else {}
         urls = ctx.server_urls() if todo else {}
-        part_files, tasks = [], []
+        part_files = []
+        groups: dict[tuple[str, ...], list[tuple[Unit, list[Path]]]] = {}
         for unit in todo:
             tier, room = unit.item
             folder = parts_dir(unit)
@@ -120,19 +148,25 @@ class QueriesStage(Stage):
                 if stale != folder or self.name in ctx.force:
                     shutil.rmtree(stale)
             folder.mkdir(parents=True, exist_ok=True)
-            plan = [dict(item) for item in plans[room]]
-            server = ctx.server(tier)
-            if ctx.server_url is None:
-                for item in plan:
-                    item["_features"] = str(ctx.paths.features_file(server.tier, item["sequence"], item["frame"]))
-                    del item["_image"]
-            parts = chunks(plan, QUERIES_PER_TASK)
-            files = [folder / f"{i:05d}.jsonl" for i in range(len(parts))]
+            files = [folder / f"{i:05d}.jsonl" for i in range(len(chunks(plans[room], QUERIES_PER_TASK)))]
             part_files.append(files)
-            localize = server.localize(ctx.config.localize)
-            tasks += [QueryTask(ctx.paths.map_dir(tier, room), localize, urls.get((tier, room)), tier, room, c,
-                                part, None if ctx.server_url else ctx.defense)
-                      for c, part in zip(parts, files, strict=True) if not part.is_file()]
+            server = ctx.server(tier)
+            group = (server.tier, room) if ctx.server_url is None else (tier, room)  # over HTTP: a server alone
+            groups.setdefault(group, []).append((unit, files))
+        tasks = []
+        for (_, room), members in groups.items():
+            plan = [dict(item) for item in plans[room]]
+            if ctx.server_url is None:
+                tier = ctx.server(members[0][0].item[0]).tier
+                for item in plan:
+                    item["_features"] = str(ctx.paths.features_file(tier, item["sequence"], item["frame"]))
+                    del item["_image"]
+            for c, items in enumerate(chunks(plan, QUERIES_PER_TASK)):
+                targets = [QueryTarget(ctx.paths.map_dir(*unit.item), ctx.server(unit.item[0]).localize(
+                    ctx.config.localize), urls.get(unit.item), unit.item[0], files[c])
+                           for unit, files in members if not files[c].is_file()]
+                if targets:
+                    tasks.append(QueryTask(targets, room, items, None if ctx.server_url else ctx.defense))
         ctx.executor.map(query_task, tasks, "queries", ctx.progress)
         clear_worker_cache()
         for unit, files in zip(todo, part_files, strict=True):
