@@ -84,23 +84,36 @@ def test_threshold_change_reuses_every_cached_stage(ci_tiny_study: Path, tmp_pat
     assert {(r["delta_r_deg"], r["delta_t_m"]) for r in rows} == set(thresholds)
 
 
-def test_an_acceptance_change_redoes_only_the_queries(ci_tiny_study: Path, tmp_path: Path, counted: Counter
-                                                       ) -> None:
-    """A map's key holds what builds it: min inliers and the PnP threshold are the queries' settings."""
+def test_an_acceptance_change_replays_pose_estimation_only(ci_tiny_study: Path, tmp_path: Path, counted: Counter,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """A map's key holds what builds it: min inliers and the PnP threshold are the queries' settings, and a change
+    of them replays pose estimation on each server's kept correspondences (nothing is retrieved or matched), with
+    the logs a run that matches from scratch writes."""
+    from synthleak.study import queries as queries_stage
+    from synthleak.study import read_query_log
+
     study = _copy(ci_tiny_study, tmp_path)
+    assert list(study.glob("queries/*/*/.matches-*/*.npz"))  # the correspondences were kept
     config = load_config("ci-tiny")
     changed = dataclasses.replace(config, localize=dataclasses.replace(config.localize, min_inliers=40,
                                                                        pnp_max_error_px=6.0))
+    matched = Counter()
+    real = queries_stage.shared_pair_matches
+    monkeypatch.setattr(queries_stage, "shared_pair_matches",
+                        lambda *args: matched.update(calls=1) or real(*args))
     before = _markers(study)
     run_study(changed, study, progress=False)
     assert counted["maps"] == counted["renderer"] == counted["frames"] == counted["features"] == 0
-    from synthleak.study import read_query_log
-
     sent = sum(len(read_query_log(p)) for p in sorted(study.glob("queries/*/*/queries.jsonl")))
-    assert counted["queries"] == sent > 0
+    assert counted["queries"] == sent > 0 and matched["calls"] == 0  # pose estimation only
     after = _markers(study)
     assert all(after[k] == v for k, v in before.items() if k.startswith(("dataset", "maps", "features")))
     assert any(after[k] != v for k, v in before.items() if k.startswith("queries"))
+    replayed = {p: p.read_bytes() for p in sorted(study.glob("queries/*/*/queries.jsonl"))}
+    assert replayed != {p: (ci_tiny_study / p.relative_to(study)).read_bytes() for p in replayed}  # fewer poses
+    run_study(changed, study, force=["queries"], progress=False)  # from scratch: matched again
+    assert matched["calls"] > 0
+    assert {p: p.read_bytes() for p in sorted(study.glob("queries/*/*/queries.jsonl"))} == replayed
 
 
 def test_new_tier_builds_only_its_maps(ci_tiny_study: Path, tmp_path: Path, counted: Counter) -> None:

@@ -115,13 +115,13 @@ def test_servers_of_one_tier_answer_together_with_the_bytes_of_each_alone(ci_tin
     alone = {p.relative_to(out): p.read_bytes() for p in sorted(out.glob("queries/*/*/queries.jsonl"))}
     assert len({p.parts[1] for p in alone}) == 2
     together: list[bool] = []
-    real = queries_stage.localize_together
+    real = queries_stage.shared_pair_matches
 
-    def recording(localizers, query, camera, shared=True):
+    def recording(localizers, query, candidates, shared=True):
         together.append(shared and len(localizers) == 2)
-        return real(localizers, query, camera, shared)
+        return real(localizers, query, candidates, shared)
 
-    monkeypatch.setattr(queries_stage, "localize_together", recording)
+    monkeypatch.setattr(queries_stage, "shared_pair_matches", recording)
     run_study(config, out, force=["queries"], progress=False)
     assert together and all(together)  # every query answered by both servers, sharing the pairs' scores
     assert {p.relative_to(out): p.read_bytes() for p in sorted(out.glob("queries/*/*/queries.jsonl"))} == alone

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from synthleak.atomic_io import atomic_write_text
 from synthleak.cache import cache_key, done_key
 from synthleak.config import StudyConfig, config_to_dict
@@ -15,7 +17,8 @@ from synthleak.executors import chunks
 from synthleak.localize.client import HttpLocalizer
 from synthleak.localize.feature_files import load_features
 from synthleak.localize.localizer import Localizer
-from synthleak.localize.shared_matching import can_share, localize_together
+from synthleak.localize.match_store import QueryMatches, read_matches, write_matches
+from synthleak.localize.shared_matching import can_share, shared_pair_matches, with_image_size
 from synthleak.study.context import Stage, StudyContext, Unit
 from synthleak.study.plan import query_plans
 from synthleak.study.workers import QUERIES_PER_TASK, clear_worker_cache, worker_cached
@@ -44,6 +47,9 @@ class QueryTarget:
     part_file: Path
     """Where the task writes this server's lines when it is done (a stopped stage keeps them and resumes after
     them)."""
+    matches_file: Path | None = None
+    """In process: where this task's correspondences of this server are kept (:mod:`synthleak.localize.match_store`):
+    read when they are there (pose estimation is replayed, nothing is matched), else written."""
 
 
 @dataclass
@@ -70,29 +76,63 @@ def _load_localizers(task: QueryTask) -> tuple[list[Any], bool]:
 def query_task(task: QueryTask) -> int:
     """Localize each image of the task with each of its servers and write one JSON line per query and server,
     in the task's order, to the server's ``part_file`` (a worker task; the lines stay on disk rather than
-    travel back to the driver). Returns the number of queries answered."""
+    travel back to the driver). In process, a server's correspondences come from its ``matches_file`` when it is
+    there, else they are matched (each pair scored once for the servers that match) and written to it. Returns
+    the number of queries answered."""
     key = repr([(str(t.map_dir), done_key(t.map_dir), t.server_url, config_to_dict(t.localize))
                 for t in task.targets] + [task.defense])
     localizers, shared = worker_cached(key, lambda: _load_localizers(task))
-    lines: list[list[str]] = [[] for _ in task.targets]
-    for entry in task.items:
-        camera = entry["_camera"]
-        if "_features" in entry:
-            features, size = load_features(Path(entry["_features"]))
-            if size != (camera.width, camera.height):
-                raise ValueError(f"{entry['_features']}: features of a {size[0]}x{size[1]} image but the camera "
-                                 f"is {camera.width}x{camera.height}")
-            results = localize_together(localizers, features, camera, shared)
-        else:
-            image = Path(entry["_image"]).read_bytes()
-            results = [localizer.localize(image, camera) for localizer in localizers]
-        for target, result, out in zip(task.targets, results, lines, strict=True):
+    if all(t.server_url is None for t in task.targets) and all("_features" in e for e in task.items):
+        results = _answer_in_process(task, localizers, shared)
+    else:
+        results = [[localizer.localize(Path(entry["_image"]).read_bytes(), entry["_camera"])
+                    for localizer in localizers] for entry in task.items]
+    for j, target in enumerate(task.targets):
+        lines = []
+        for entry, answers in zip(task.items, results, strict=True):
+            result = answers[j]
             remote = bool(target.server_url) and not getattr(result, "labelled", False)  # labelled: as in process
-            out.append(query_line(entry, target.tier, task.room, result, task.defense, remote=remote,
-                                  served=bool(target.server_url)))
-    for target, out in zip(task.targets, lines, strict=True):
-        atomic_write_text(target.part_file, "".join(line + "\n" for line in out))
+            lines.append(query_line(entry, target.tier, task.room, result, task.defense, remote=remote,
+                                    served=bool(target.server_url)))
+        atomic_write_text(target.part_file, "".join(line + "\n" for line in lines))
     return len(task.items) * len(task.targets)
+
+
+def _answer_in_process(task: QueryTask, localizers: list[Localizer], shared: bool) -> list[list[Any]]:
+    """Per query, each target's result from the query's cached features: cached correspondences replayed,
+    the others matched (together where ``shared``) and then kept in the targets' matches files."""
+    cached = [read_matches(t.matches_file) if t.matches_file is not None and t.matches_file.is_file() else None
+              for t in task.targets]
+    for t, kept in zip(task.targets, cached, strict=True):
+        if kept is not None and len(kept) != len(task.items):
+            raise ValueError(f"{t.matches_file}: matches of {len(kept)} queries, the task has {len(task.items)}")
+    todo = [j for j, kept in enumerate(cached) if kept is None]
+    made: list[list[QueryMatches]] = [[] for _ in task.targets]
+    results = []
+    for q, entry in enumerate(task.items):
+        camera = entry["_camera"]
+        features, size = load_features(Path(entry["_features"]))
+        if size != (camera.width, camera.height):
+            raise ValueError(f"{entry['_features']}: features of a {size[0]}x{size[1]} image but the camera "
+                             f"is {camera.width}x{camera.height}")
+        query = with_image_size(features, camera)
+        matched: dict[int, QueryMatches] = {}
+        if todo:
+            locs = [localizers[j] for j in todo]
+            candidates = [loc.candidates(query) if len(query) else np.zeros(0, np.int64) for loc in locs]
+            pairs = shared_pair_matches(locs, query, candidates, shared) if len(query) else [[] for _ in locs]
+            matched = {j: (c, m) for j, c, m in zip(todo, candidates, pairs, strict=True)}
+        answers = []
+        for j, loc in enumerate(localizers):
+            candidates, pairs = matched[j] if j in matched else cached[j][q]
+            if j in matched:
+                made[j].append((candidates, pairs))
+            answers.append(loc.localize_features(query, camera, candidates, pairs))
+        results.append(answers)
+    for j in todo:
+        if task.targets[j].matches_file is not None:
+            write_matches(task.targets[j].matches_file, made[j])
+    return results
 
 
 def parts_dir(unit: Unit) -> Path:
@@ -134,22 +174,39 @@ class QueriesStage(Stage):
         localize = config_to_dict(ctx.server(server).localize(ctx.config.localize))
         return {k: v for k, v in localize.items() if k != "tiers"}
 
+    @staticmethod
+    def matching_key(ctx: StudyContext, server: str, room: str) -> str:
+        """What a server's correspondences depend on: its map (the map's key names the tier, profile and what
+        built it), the query features, the plan and the retrieval, not the acceptance rule or the PnP threshold
+        (a change of those replays pose estimation on the kept correspondences)."""
+        localize = QueriesStage.settings(ctx, server)
+        return cache_key("matches", done_key(ctx.paths.map_dir(server, room)), done_key(ctx.paths.dataset),
+                         ctx.genuine, ctx.config.attack.queries_per_object,
+                         {k: localize.get(k) for k in ("retrieval", "top_k", "max_keypoints")})
+
     def make(self, ctx: StudyContext, todo: list[Unit]) -> dict[tuple[str, str], Path]:
         """Returns every server's log (made now or before). In process, the servers of one tier and room share
-        their tasks (one task answers a chunk of queries for each of them)."""
+        their tasks (one task answers a chunk of queries for each of them) and each server keeps its
+        correspondences (``.matches-<key>/``, :meth:`matching_key`) beside its log for later replays."""
         plans = query_plans(ctx) if todo else {}
         urls = ctx.server_urls() if todo else {}
-        part_files = []
+        part_files, match_files = [], {}
         groups: dict[tuple[str, ...], list[tuple[Unit, list[Path]]]] = {}
         for unit in todo:
             tier, room = unit.item
             folder = parts_dir(unit)
-            for stale in unit.folder.glob(".parts-*") if unit.folder.is_dir() else []:
-                if stale != folder or self.name in ctx.force:
+            matches = unit.folder / f".matches-{self.matching_key(ctx, tier, room)[:16]}"
+            for stale in [*unit.folder.glob(".parts-*"), *unit.folder.glob(".matches-*")] if unit.folder.is_dir() \
+                    else []:
+                if stale not in (folder, matches) or self.name in ctx.force:
                     shutil.rmtree(stale)
             folder.mkdir(parents=True, exist_ok=True)
-            files = [folder / f"{i:05d}.jsonl" for i in range(len(chunks(plans[room], QUERIES_PER_TASK)))]
+            count = len(chunks(plans[room], QUERIES_PER_TASK))
+            files = [folder / f"{i:05d}.jsonl" for i in range(count)]
             part_files.append(files)
+            if ctx.server_url is None:
+                matches.mkdir(parents=True, exist_ok=True)
+                match_files[unit.item] = [matches / f"{i:05d}.npz" for i in range(count)]
             server = ctx.server(tier)
             group = (server.tier, room) if ctx.server_url is None else (tier, room)  # over HTTP: a server alone
             groups.setdefault(group, []).append((unit, files))
@@ -163,7 +220,8 @@ class QueriesStage(Stage):
                     del item["_image"]
             for c, items in enumerate(chunks(plan, QUERIES_PER_TASK)):
                 targets = [QueryTarget(ctx.paths.map_dir(*unit.item), ctx.server(unit.item[0]).localize(
-                    ctx.config.localize), urls.get(unit.item), unit.item[0], files[c])
+                    ctx.config.localize), urls.get(unit.item), unit.item[0], files[c],
+                    match_files[unit.item][c] if unit.item in match_files else None)
                            for unit, files in members if not files[c].is_file()]
                 if targets:
                     tasks.append(QueryTask(targets, room, items, None if ctx.server_url else ctx.defense))
