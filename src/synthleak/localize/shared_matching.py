@@ -17,7 +17,7 @@ import numpy as np
 
 from synthleak.core.types import Camera
 from synthleak.localize.features import Features
-from synthleak.localize.localizer import LocalizationResult, Localizer
+from synthleak.localize.localizer import Localizer
 from synthleak.localize.matching import PairScores, pair_scores
 from synthleak.localize.tiers import uses_nn_matcher
 
@@ -68,16 +68,3 @@ def shared_pair_matches(localizers: list[Localizer], query: Features, candidates
 def with_image_size(query: Features, camera: Camera) -> Features:
     """``query`` with the camera's image size where its features carry none (as ``localize_features`` does)."""
     return replace(query, image_size=(camera.width, camera.height)) if query.image_size == (0, 0) else query
-
-
-def localize_together(localizers: list[Localizer], query: Features, camera: Camera, shared: bool = True
-                      ) -> list[LocalizationResult]:
-    """Each localizer's :meth:`~Localizer.localize_features` of ``query``, the pairs scored once for all of them
-    where ``shared`` (a :func:`can_share` group): the same results, for the matching cost of about one server."""
-    if not shared or not len(query):
-        return [loc.localize_features(query, camera) for loc in localizers]
-    query = with_image_size(query, camera)
-    candidates = [loc.candidates(query) for loc in localizers]
-    matches = shared_pair_matches(localizers, query, candidates)
-    return [loc.localize_features(query, camera, c, m) for loc, c, m in zip(localizers, candidates, matches,
-                                                                            strict=True)]
