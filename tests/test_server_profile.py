@@ -157,7 +157,7 @@ def test_strict_configs_keep_their_content_keys(name):
     del before["localize"]["representation"]  # added after profiles, left out at "points" the same way
     del before["localize"]["servers"]  # likewise, left out while empty (every server of the config)
     del before["localize"]["two_view_min_inliers"]  # likewise, left out while 0 (no two-view check)
-    del before["localize"]["pnp_solver"]  # likewise, left out at its default (poselib)
+    del before["localize"]["pnp_solver"]  # likewise, left out at its default (colmap)
     for key in ("capture_map", "capture_genuine", "capture_attacker",  # the render keys added after profiles
                 "light_map", "light_genuine", "light_attacker"):
         del before["render"][key]
