@@ -1,12 +1,14 @@
-"""Servers of one tier answering the same query: each (query, map image) pair is scored once for all of them.
+"""Servers of one tier answering the same query: a (query, map image) pair is scored once for all of them where
+their maps give the same keypoints of that image a point.
 
 A tier's servers differ in their matching rule (the ``strict`` and ``hloc`` profiles' ratio and mutual checks)
 and in their maps' points (each profile triangulates its own), not in the map images' features: the maps of a
-tier and room are built from the same extraction (:func:`synthleak.localize.mapping.build_maps`). So the
-descriptor scores of a query against the union of the keypoints the servers' maps give a point are computed
-once, and each server filters the columns of its own mapped keypoints with its own rule: the same matches as
-its own :meth:`~synthleak.localize.localizer.Localizer.pair_matches`, bit for bit (each score is its own dot
-product, whatever the other columns). Servers whose matcher is not nearest neighbours match on their own.
+tier and room are built from the same extraction (:func:`synthleak.localize.mapping.build_maps`). Where the
+servers' maps give the same keypoints of an image a point (the representations of one profile: points and line
+clouds), the descriptor scores of the pair are computed once and each server filters them with its own rule: the
+same matches as its own :meth:`~synthleak.localize.localizer.Localizer.pair_matches`, bit for bit. Elsewhere each
+server scores its own keypoints (gathering a union's columns cost more than the product it saved). Servers whose
+matcher is not nearest neighbours match on their own.
 """
 
 from __future__ import annotations
@@ -38,7 +40,10 @@ def can_share(localizers: list[Localizer]) -> bool:
 def shared_pair_matches(localizers: list[Localizer], query: Features, candidates: list[np.ndarray],
                         shared: bool = True) -> list[list[np.ndarray]]:
     """Per localizer, the pair matches of its ``candidates`` (each its :meth:`Localizer.pair_matches`); with
-    ``shared`` (a :func:`can_share` group), each map image's scores against the query computed once."""
+    ``shared`` (a :func:`can_share` group), a map image whose mapped keypoints are the same in every server's map
+    (the representations of one profile) is scored once for all of them. Images whose keypoint sets differ (the
+    strict and hloc profiles' maps) are scored per server: copying a union's columns costs more than the product
+    it saves."""
     if not shared:
         return [loc.pair_matches(query, c) for loc, c in zip(localizers, candidates, strict=True)]
     features = localizers[0].data.features
@@ -46,22 +51,14 @@ def shared_pair_matches(localizers: list[Localizer], query: Features, candidates
     for loc, cands in zip(localizers, candidates, strict=True):
         for i in cands.tolist():
             columns.setdefault(i, []).append(loc.mapped_keypoints(i))
-    scored: dict[int, tuple[np.ndarray, PairScores]] = {}
-    for i, keeps in columns.items():
-        union = keeps[0] if len(keeps) == 1 else np.unique(np.concatenate(keeps))
-        scored[i] = (union, pair_scores(query, features[i].subset(union)))
+    scored: dict[int, PairScores] = {i: pair_scores(query, features[i].subset(keeps[0])) for i, keeps in
+                                     columns.items()
+                                     if len(keeps) > 1 and all(np.array_equal(keeps[0], k) for k in keeps[1:])}
     out = []
     for loc, cands in zip(localizers, candidates, strict=True):
         rule = (loc.tier.ratio, loc.tier.mutual)
-        matches = []
-        for i in cands.tolist():
-            union, scores = scored[i]
-            keep = loc.mapped_keypoints(i)
-            if scores.scores is not None and len(keep) != len(union):
-                scores = PairScores(scores.scores[:, np.searchsorted(union, keep)] if len(keep) else None,
-                                    scores.to_distance, scores.squared)
-            matches.append(scores.matches(*rule, both_ways=loc.tier.ratio_both_ways))
-        out.append(matches)
+        out.append([scored[i].matches(*rule, both_ways=loc.tier.ratio_both_ways) if i in scored
+                    else loc.pair_matches(query, np.array([i]))[0] for i in cands.tolist()])
     return out
 
 
