@@ -102,16 +102,17 @@ def test_a_study_runs_both_profiles_on_the_same_features(ci_tiny_study: Path, tm
 
 def test_servers_of_one_tier_answer_together_with_the_bytes_of_each_alone(ci_tiny_study: Path, tmp_path: Path,
                                                                           monkeypatch: pytest.MonkeyPatch):
-    """In process, the strict and hloc servers of a tier answer each chunk of queries in one task, each pair of a
-    query and a map image scored once for both (:mod:`synthleak.localize.shared_matching`); their logs are the
-    bytes each server logs alone."""
+    """In process, a tier's servers of one profile (points and line cloud) answer each chunk of queries in one task,
+    each pair of a query and a map image scored once for both (:mod:`synthleak.localize.shared_matching`); their
+    logs are the bytes each server logs alone."""
     from synthleak.study import queries as queries_stage
 
     out = tmp_path / "study"
     shutil.copytree(ci_tiny_study, out)
     base = load_config("ci-tiny")
-    config = dataclasses.replace(base, localize=dataclasses.replace(base.localize, profile=["strict", "hloc"]))
-    run_study(config, out, progress=False)  # sift's logs are the fixture's; sift@hloc's are made alone
+    config = dataclasses.replace(base, localize=dataclasses.replace(base.localize,
+                                                                    representation=["points", "line-cloud"]))
+    run_study(config, out, progress=False)  # sift's logs are the fixture's; sift+line-cloud's are made alone
     alone = {p.relative_to(out): p.read_bytes() for p in sorted(out.glob("queries/*/*/queries.jsonl"))}
     assert len({p.parts[1] for p in alone}) == 2
     together: list[bool] = []

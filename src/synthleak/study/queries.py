@@ -208,10 +208,13 @@ class QueriesStage(Stage):
                 matches.mkdir(parents=True, exist_ok=True)
                 match_files[unit.item] = [matches / f"{i:05d}.npz" for i in range(count)]
             server = ctx.server(tier)
-            group = (server.tier, room) if ctx.server_url is None else (tier, room)  # over HTTP: a server alone
+            # in process, a tier's servers of one profile (its map representations) share a task: their maps give
+            # the same keypoints a point, so each pair is scored once; other servers (profiles) get tasks of their
+            # own, which keeps the tasks small enough to balance the workers. Over HTTP: a server alone.
+            group = (server.tier, server.profile, room) if ctx.server_url is None else (tier, room)
             groups.setdefault(group, []).append((unit, files))
         tasks = []
-        for (_, room), members in groups.items():
+        for (*_, room), members in groups.items():
             plan = [dict(item) for item in plans[room]]
             if ctx.server_url is None:
                 tier = ctx.server(members[0][0].item[0]).tier
