@@ -43,6 +43,11 @@ def undistorted_keypoints(keypoints: np.ndarray, camera: Camera) -> tuple[np.nda
     return out, Camera(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
 
 
+def with_image_size(query: Features, camera: Camera) -> Features:
+    """``query`` with the camera's image size where its features carry none."""
+    return replace(query, image_size=(camera.width, camera.height)) if query.image_size == (0, 0) else query
+
+
 @dataclass
 class LocalizationResult:
     """Outcome of one query. ``cam_from_world`` is a 4x4 float64 pose or None (not localized)."""
@@ -169,8 +174,7 @@ class Localizer:
         ``matches``, the candidates' :meth:`pair_matches` made before (shared with another server of the tier, or
         cached), replaces the matching: the result is then the pose estimation's alone."""
         camera = camera or self.camera
-        if query.image_size == (0, 0):
-            query = replace(query, image_size=(camera.width, camera.height))
+        query = with_image_size(query, camera)
         t1 = time.perf_counter()
         if not len(query):  # a blank image: nothing to match
             return LocalizationResult(False, timings={"features": 0.0, "retrieval": 0.0, "matching": 0.0,

@@ -13,11 +13,8 @@ matcher is not nearest neighbours match on their own.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
-from synthleak.core.types import Camera
 from synthleak.localize.features import Features
 from synthleak.localize.localizer import Localizer
 from synthleak.localize.matching import PairScores, pair_scores
@@ -60,8 +57,3 @@ def shared_pair_matches(localizers: list[Localizer], query: Features, candidates
         out.append([scored[i].matches(*rule, both_ways=loc.tier.ratio_both_ways) if i in scored
                     else loc.pair_matches(query, np.array([i]))[0] for i in cands.tolist()])
     return out
-
-
-def with_image_size(query: Features, camera: Camera) -> Features:
-    """``query`` with the camera's image size where its features carry none (as ``localize_features`` does)."""
-    return replace(query, image_size=(camera.width, camera.height)) if query.image_size == (0, 0) else query

@@ -16,9 +16,9 @@ from synthleak.evaluate.query_log import query_line
 from synthleak.executors import chunks
 from synthleak.localize.client import HttpLocalizer
 from synthleak.localize.feature_files import load_features
-from synthleak.localize.localizer import Localizer
+from synthleak.localize.localizer import Localizer, with_image_size
 from synthleak.localize.match_store import QueryMatches, read_matches, write_matches
-from synthleak.localize.shared_matching import can_share, shared_pair_matches, with_image_size
+from synthleak.localize.shared_matching import can_share, shared_pair_matches
 from synthleak.study.context import Stage, StudyContext, Unit
 from synthleak.study.plan import query_plans
 from synthleak.study.workers import QUERIES_PER_TASK, clear_worker_cache, worker_cached
